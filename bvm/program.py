@@ -1,0 +1,177 @@
+"""A loaded Buzz program: the .bo bytecode, its string table and its .bdb debug info.
+
+Bytecode arrives over the air, so everything here is bounds-checked and capped: a
+truncated, corrupted or hostile file gives a `BuzzLoadError`, never an exception of
+another kind and never unbounded memory.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from bvm.errors import BuzzLoadError
+from bvm.opcodes import FIRST_ARG_OPCODE, NUM_OPCODES, Op
+
+#: Largest .bo or .bdb accepted (a real script is a few KiB).
+MAX_FILE_BYTES = 16 * 1024 * 1024
+
+# Names the reference registers after the bytecode strings (§8.1), in order. A `pushs`
+# with an id past the bytecode's own strings resolves into this list, as it does there.
+BUILTIN_STRINGS: tuple[str, ...] = (
+    tuple(
+        "get filter kin nonkin foreach map reduce count broadcast listen ignore neighbors id "
+        "type int float clone size isnil isint isfloat isstring istable isclosure isuserdata "
+        "stigmergy create swarm union intersection difference math abs floor ceil round log "
+        "log2 log10 exp sqrt sin cos tan asin acos atan min max pi rng setseed uniform "
+        "gaussian exponential fopen fclose fsize fforeach fwrite io errno error_message".split()
+    )
+    + ("No error",)
+    + tuple("length sub concat tostring toint tofloat string".split())
+)
+
+_PUSHF = struct.Struct("<f")
+_ARG = struct.Struct("<I")
+
+
+@dataclass(frozen=True)
+class Instruction:
+    """One decoded instruction: opcode, argument (None when it takes none) and the next pc."""
+
+    addr: int
+    op: Op
+    arg: int | float | None
+    next: int
+
+
+@dataclass
+class Program:
+    """Compiled Buzz bytecode (`.bytecode`, the .bo bytes) with its debug info (`.debug`)."""
+
+    bytecode: bytes
+    debug: bytes = b""
+    path: str = "<buzz>"
+    strings: list[str] = field(init=False)
+    code_start: int = field(init=False)
+    locations: dict[int, tuple[str, int, int]] = field(init=False)
+
+    def __post_init__(self) -> None:
+        if len(self.bytecode) > MAX_FILE_BYTES or len(self.debug) > MAX_FILE_BYTES:
+            raise BuzzLoadError(f"{self.path}: file larger than {MAX_FILE_BYTES} bytes")
+        self.strings, self.code_start = _parse_strings(self.bytecode, self.path)
+        self.locations = _parse_debug(self.debug, self.path)
+
+    @classmethod
+    def load(cls, bo_path: str | Path) -> Program:
+        """Load a .bo file and, when present, the .bdb beside it."""
+        bo_path = Path(bo_path)
+        try:
+            bytecode = _read_capped(bo_path)
+            bdb_path = bo_path.with_suffix(".bdb")
+            debug = _read_capped(bdb_path) if bdb_path.exists() else b""
+        except OSError as e:
+            raise BuzzLoadError(f"{bo_path}: cannot read: {e.strerror or e}") from None
+        return cls(bytecode, debug, str(bo_path))
+
+    def string(self, sid: int) -> str | None:
+        """The string a `pushs` id names, or None when no string has that id."""
+        sid &= 0xFFFF
+        if sid < len(self.strings):
+            return self.strings[sid]
+        extra = [s for s in BUILTIN_STRINGS if s not in self._string_set]
+        k = sid - len(self.strings)
+        return extra[k] if k < len(extra) else None
+
+    @property
+    def _string_set(self) -> frozenset[str]:
+        return frozenset(self.strings)
+
+    def location(self, offset: int) -> tuple[str, int, int] | None:
+        """(file, line, col) of the instruction at `offset`, from the .bdb."""
+        return self.locations.get(offset)
+
+    def decode(self, pc: int) -> Instruction | None:
+        """Decode the instruction at `pc` with the VM's range rules, or None if it can't run.
+
+        As in the reference, an instruction must be followed by at least one more byte
+        (its pc increment must stay inside the file), except `done`.
+        """
+        bc = self.bytecode
+        size = len(bc)
+        if pc < self.code_start or pc >= size:
+            return None
+        code = bc[pc]
+        if code >= NUM_OPCODES:
+            return None
+        op = Op(code)
+        if op is Op.DONE:
+            return Instruction(pc, op, None, pc)
+        if code < FIRST_ARG_OPCODE:
+            if pc + 1 >= size:
+                return None
+            return Instruction(pc, op, None, pc + 1)
+        if pc + 5 >= size:
+            return None
+        if op is Op.PUSHF:
+            arg: int | float = _PUSHF.unpack_from(bc, pc + 1)[0]
+        else:
+            arg = _ARG.unpack_from(bc, pc + 1)[0]
+            if op is Op.PUSHI:
+                arg = arg - 0x100000000 if arg & 0x80000000 else arg
+        return Instruction(pc, op, arg, pc + 5)
+
+
+def _read_capped(path: Path) -> bytes:
+    with path.open("rb") as f:
+        data = f.read(MAX_FILE_BYTES + 1)
+    if len(data) > MAX_FILE_BYTES:
+        raise BuzzLoadError(f"{path}: file larger than {MAX_FILE_BYTES} bytes")
+    return data
+
+
+def _parse_strings(bc: bytes, path: str) -> tuple[list[str], int]:
+    """The string table at the head of a .bo: u16 count, then NUL-terminated strings."""
+    if len(bc) < 2:
+        raise BuzzLoadError(f"{path}: truncated bytecode: no string count ({len(bc)} bytes)")
+    count = bc[0] | (bc[1] << 8)
+    pos = 2
+    strings: list[str] = []
+    seen: set[str] = set()
+    for i in range(count):
+        end = bc.find(b"\0", pos)
+        if end < 0:
+            raise BuzzLoadError(
+                f"{path}: truncated bytecode: string {i} of {count} has no terminating NUL "
+                f"(offset {pos})"
+            )
+        s = bc[pos:end].decode("latin-1")
+        # A repeated string reuses its first id, shifting later ids (as the reference does).
+        if s not in seen:
+            seen.add(s)
+            strings.append(s)
+        pos = end + 1
+    if pos >= len(bc):
+        raise BuzzLoadError(f"{path}: truncated bytecode: no code after the string table")
+    return strings, pos
+
+
+_DBG_HEAD = struct.Struct("<IQQH")
+
+
+def _parse_debug(bdb: bytes, path: str) -> dict[int, tuple[str, int, int]]:
+    """The .bdb records: u32 offset, u64 line, u64 col, u16 name length, name."""
+    out: dict[int, tuple[str, int, int]] = {}
+    pos = 0
+    n = len(bdb)
+    while pos < n:
+        if pos + _DBG_HEAD.size > n:
+            raise BuzzLoadError(f"{path}: truncated debug info: partial record at byte {pos}")
+        offset, line, col, namelen = _DBG_HEAD.unpack_from(bdb, pos)
+        pos += _DBG_HEAD.size
+        if pos + namelen > n:
+            raise BuzzLoadError(f"{path}: truncated debug info: file name past the end at {pos}")
+        name = bdb[pos : pos + namelen].decode("utf-8", "replace")
+        pos += namelen
+        out[offset] = (name, line, col)
+    return out

@@ -1,0 +1,3 @@
+"""fieldkit: design, simulate and field-deploy Buzz swarm behaviors."""
+
+__version__ = "0.1.0"
