@@ -137,9 +137,10 @@ ALL_OPCODES = [
     "pushf", "pushi", "pushs", "pushcn", "pushcc", "pushl", "lload", "lstore", "lremove", "jump",
     "jumpz", "jumpnz",
 ]  # fmt: skip
-# Opcodes the compiler never emits (§5.3, §6.3): `calls` is only pushed by the swarm native
-# `exec`, and `pushcc` only appears in hand-written assembly (natives are registered by the VM
-# as globals, never referenced as constants). Every other opcode is reachable from source:
+# Opcodes the compiler never emits (§5.3, §6.3): `calls` (the "swarm call", §6.3 says "never
+# emitted by the compiler"; swarm calls are made from inside the swarm natives) and `pushcc`
+# (natives are registered by the VM as global/table values, never referenced as constants,
+# so only hand-written assembly contains it). Every other opcode is reachable from source:
 # nop/pushcn come from the function-registration prologue, done ends the global code,
 # jumpnz comes from `for`, lremove from blocks that declare locals inside functions.
 NEVER_EMITTED = {"calls", "pushcc"}
