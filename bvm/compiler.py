@@ -413,7 +413,8 @@ class _Compiler:
             return
         # Deliberate fix: `return` followed by a later line may be a bare return
         # whose value the reference swallowed; compile_source decides by re-parsing.
-        fallback_ok = self.tok.newline_before
+        # (Not before EOF: a top-level `return` at the end stays the reference's error.)
+        fallback_ok = self.tok.newline_before and self.tok.kind is not Tok.EOF
         if fallback_ok and site in self.forced:
             self.emit("\tret0")
             return

@@ -328,6 +328,8 @@ class Lexer:
     def _find(self, name: str, src: _Source, col: int) -> tuple[str, bytes] | None:
         # The reference looks relative to the process cwd first, then BUZZ_INCLUDE_PATH.
         for candidate in [name] + [os.path.join(d, name) for d in self._search_dirs(src)]:
+            if not os.path.isfile(candidate):  # regular files only: never block on a device
+                continue
             try:
                 with open(candidate, "rb") as f:
                     return candidate, f.read()
