@@ -26,18 +26,6 @@ def expected(what: str, x: Any) -> BuzzError:
     return BuzzError(f"type mismatch: expected {what}, got {type_name(x)}")
 
 
-def check_table(t: Any) -> None:
-    """Raise the reference type error unless t is a table."""
-    if t.__class__ is not Table:
-        raise expected("table", t)
-
-
-def check_closure(f: Any) -> None:
-    """Raise the reference type error unless f is a closure."""
-    if f.__class__ is not Closure:
-        raise expected("closure", f)
-
-
 # ---------------------------------------------------------------- pure natives
 
 

@@ -25,8 +25,8 @@ from bvm.values import Table, f32, format_float, format_value, type_name
 _Vm = Any
 
 _LONG_MAX = 0x7FFFFFFFFFFFFFFF
-_WS = " \t\n\v\f\r"  # C isspace() in the "C" locale
 
+# Leading blanks are C isspace() in the "C" locale: " \t\n\v\f\r" only.
 _INT_RE = re.compile(r"[ \t\n\v\f\r]*([+-]?)([0-9]+)")
 _FLOAT_RE = re.compile(
     r"[ \t\n\v\f\r]*([+-]?)(?:"
