@@ -72,7 +72,7 @@ def interpret(
     program = vm.program
     size = len(program.bytecode)
     decode = program.decode
-    budget = vm.budget_cell
+    g = vm.globals  # holds the budget ticker `_N` (see bvm/budget.py)
     stack: list[Any] = []
     push = stack.append
     pop = stack.pop
@@ -150,18 +150,12 @@ def interpret(
         elif op is Op.GLOAD:
             if not stack:
                 raise _empty()
-            name = stack[-1]
-            if name.__class__ is not str:
-                raise BuzzError(f"type mismatch: expected string, got {type_name(name)}")
-            stack[-1] = vm.globals.get(name)
+            stack[-1] = vm.gload(stack[-1])
         elif op is Op.GSTORE:
             if len(stack) < 2:
                 raise _empty()
             value = pop()
-            name = pop()
-            if name.__class__ is not str:
-                raise BuzzError(f"type mismatch: expected string, got {type_name(name)}")
-            vm.globals[name] = value
+            vm.gstore(pop(), value)
         elif op is Op.PUSHT:
             push(Table())
         elif op is Op.TPUT:
@@ -191,10 +185,8 @@ def interpret(
                 raise BuzzError(f"type mismatch: expected closure, got {type_name(c)}")
             args = stack[len(stack) - n :] if n else []
             del stack[len(stack) - n - 2 :]  # the arguments, the closure and its self slot
-            budget[0] -= 1
-            if budget[0] <= 0:
-                vm.tick()
-            push(c.fn(c, *args))
+            g["_N"]()
+            push(vm.invoke(c, tuple(args)))
         elif op is Op.PUSHF or op is Op.PUSHI:
             push(ins.arg)
         elif op is Op.PUSHS:
@@ -238,9 +230,7 @@ def interpret(
         elif op is Op.JUMP:
             pc = _target(ins.arg, size)  # type: ignore[arg-type]
             if pc <= ins.addr:
-                budget[0] -= 1
-                if budget[0] <= 0:
-                    vm.tick()
+                g["_N"]()
         elif op is Op.JUMPZ or op is Op.JUMPNZ:
             if not stack:
                 raise _empty()
@@ -248,9 +238,7 @@ def interpret(
             if is_true(x) == (op is Op.JUMPNZ):
                 pc = _target(ins.arg, size)  # type: ignore[arg-type]
                 if pc <= ins.addr:
-                    budget[0] -= 1
-                    if budget[0] <= 0:
-                        vm.tick()
+                    g["_N"]()
         else:  # pragma: no cover - every opcode is handled above
             raise BuzzError("unknown instruction")
 

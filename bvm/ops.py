@@ -178,6 +178,11 @@ def equals(a: Any, b: Any) -> bool:
     return a is b
 
 
+def not_equals(a: Any, b: Any) -> bool:
+    """a != b."""
+    return not equals(a, b)
+
+
 def order(a: Any, b: Any) -> int | None:
     """-1, 0 or 1 for an ordered pair; None when a NaN makes it unordered.
 
@@ -206,6 +211,9 @@ def order(a: Any, b: Any) -> int | None:
         return -1
     if a is None and b is None:
         return 0
+    if a is None or b is None:
+        other = b if a is None else a
+        raise BuzzError(f"type mismatch: cannot order nil and {type_name(other)}")
     raise BuzzError(f"type mismatch: cannot order {type_name(a)} and {type_name(b)}")
 
 

@@ -95,7 +95,7 @@ class Program:
         """Decode the instruction at `pc` with the VM's range rules, or None if it can't run.
 
         As in the reference, an instruction must be followed by at least one more byte
-        (its pc increment must stay inside the file), except `done`.
+        (its pc increment must stay inside the file), except `done`, `ret0` and `ret1`.
         """
         bc = self.bytecode
         size = len(bc)
@@ -108,7 +108,8 @@ class Program:
         if op is Op.DONE:
             return Instruction(pc, op, None, pc)
         if code < FIRST_ARG_OPCODE:
-            if pc + 1 >= size:
+            # ret0/ret1 jump back to the caller without moving pc past themselves.
+            if pc + 1 >= size and op is not Op.RET0 and op is not Op.RET1:
                 return None
             return Instruction(pc, op, None, pc + 1)
         if pc + 5 >= size:

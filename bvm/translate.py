@@ -3,26 +3,34 @@
 A dispatch loop over opcodes runs 20-50x slower than plain Python, so each function
 is turned into Python source once and compiled by CPython:
 
-* the operand stack becomes Python locals (a symbolic stack of expressions);
-* local symbol slots become Python locals `l0, l1, ...`;
+* the operand stack becomes Python locals (a symbolic stack of expressions), and the
+  local symbol slots become Python locals `_l0, _l1, ...`;
+* Buzz globals are the generated functions' own module globals, so a global read is
+  CPython's specialized `LOAD_GLOBAL` (an absent name falls through to a builtins
+  mapping that answers nil);
 * control flow is recovered from the shapes the Buzz compiler emits (if, if/else,
-  while, for; Buzz has no break or goto), into Python `if` and `while True`;
-* int/int arithmetic, comparisons and string/int-keyed table access are inlined;
-  everything else calls the one definition in bvm/ops.py.
+  while, for; Buzz has no break or goto) into Python `if` and `while True`;
+* types are inferred flow-sensitively (constants, int/float arithmetic, locals, and the
+  argument types seen on the first call, guarded at entry), so known ints and floats run
+  as bare Python operations plus the int32 wrap or the binary32 rounding; unknown
+  operands take an inline int/int path and call bvm/ops.py for everything else.
 
 Anything that does not fit (hand-made or hostile bytecode, inconsistent stack depths,
-a call with an unexpected argument count, an instruction that is certain to fail)
-raises `NotStructured`, and the caller runs that function on the reference
-interpreter instead, so semantics never depend on the translator's coverage.
+an instruction certain to fail) raises `NotStructured`, and that function runs on the
+reference interpreter instead, so semantics never depend on the translator's coverage.
 
-Error locations cost nothing on the fast path: each generated line is mapped to the
-bytecode offset it came from, and bvm/vm.py reads the traceback when an error occurs.
+Error locations cost nothing on the fast path: each generated line maps to a bytecode
+offset, and bvm/vm.py reads the traceback when an error occurs.
 """
 
 from __future__ import annotations
 
 import itertools
+import keyword
 import math
+import os
+import re
+import sys
 from typing import TYPE_CHECKING, Any
 
 from bvm import ops
@@ -30,7 +38,7 @@ from bvm.errors import BuzzError
 from bvm.interp import Halt
 from bvm.opcodes import Op
 from bvm.program import Instruction
-from bvm.values import Closure, Table, i32, type_name
+from bvm.values import F32_CELL, Closure, Table, i32, type_name
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -43,86 +51,61 @@ LINE_MAPS: dict[str, list[int]] = {}
 _MAX_INSTRUCTIONS = 100_000
 _MAX_NESTING = 80  # CPython's tokenizer allows 100 indentation levels
 _MAX_LOOPS = 18  # and 20 statically nested loops
+_MAX_PASSES = 8  # loop re-emissions while inferring types
 _serial = itertools.count()
+_IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
+
+# Static types of symbolic values. BOOL is a Python bool (a comparison result) that
+# becomes the Buzz int 0/1 only where it is used as a value.
+INT, FLOAT, STR, NIL, TABLE, CLOSURE, BOOL, ANY = (
+    "int", "float", "str", "nil", "table", "closure", "bool", "any"
+)  # fmt: skip
+_KNOWN_CLASS = {int: INT, float: FLOAT, str: STR, Table: TABLE}
 
 
 class NotStructured(Exception):
     """The function has a shape the translator does not handle; interpret it instead."""
 
 
-class _Missing:
-    """Default value of parameters, marking an argument the caller did not pass."""
+def _join(a: str, b: str) -> str:
+    return a if a == b else ANY
 
 
-MISSING = _Missing()
-
-
-def _wrap(x: Any) -> Any:
-    return i32(x) if x.__class__ is int else x
-
-
-def _not_callable(c: Any) -> Any:
-    raise BuzzError(f"type mismatch: expected closure, got {type_name(c)}")
-
-
-def _gload(name: Any) -> Any:  # pragma: no cover - replaced per VM, see _namespace
-    raise NotImplementedError
-
-
-# Binary operators: (template for the int/int fast path, slow-path function name).
-_ARITH = {
-    Op.ADD: ("+", "_add"),
-    Op.SUB: ("-", "_sub"),
-    Op.MUL: ("*", "_mul"),
-}
-_OTHER_BINARY = {
-    Op.DIV: "_div",
-    Op.MOD: "_mod",
-    Op.POW: "_pow",
-    Op.BAND: "_band",
-    Op.BOR: "_bor",
-    Op.LSHIFT: "_lshift",
-    Op.RSHIFT: "_rshift",
-}
-_COMPARE = {
-    Op.EQ: ("==", "_eq", True),
-    Op.NEQ: ("!=", "_neq", True),
-    Op.LT: ("<", "_lt", False),
-    Op.LTE: ("<=", "_lte", False),
-    Op.GT: (">", "_gt", False),
-    Op.GTE: (">=", "_gte", False),
-}
-
-_NOCONST = object()
+def python_name(name: str) -> str | None:
+    """The Python global a Buzz global can live under, or None when it needs `_G[...]`."""
+    if _IDENT.match(name) and not keyword.iskeyword(name):
+        return name
+    return None
 
 
 class _Expr:
-    """A symbolic stack entry: Python code that evaluates to the value, without side effects.
+    """A symbolic stack entry: side-effect-free Python code, its static type and constant."""
 
-    `kind` is "val" for a Buzz value or "bool" for a Python bool (a comparison result
-    that becomes the int 0/1 only where it is used as a value).
-    """
+    __slots__ = ("code", "ty", "const")
 
-    __slots__ = ("code", "kind", "const")
-
-    def __init__(self, code: str, kind: str = "val", const: Any = _NOCONST) -> None:
+    def __init__(self, code: str, ty: str = ANY, const: Any = None) -> None:
         self.code = code
-        self.kind = kind
-        self.const = const
+        self.ty = ty
+        self.const = const  # the value of a literal; None when not a literal (or nil)
+
+    @property
+    def is_literal(self) -> bool:
+        return self.ty == NIL or self.const is not None
 
 
 class _Loop:
-    __slots__ = ("header", "exit", "start")
+    __slots__ = ("exit", "start", "exit_types")
 
-    def __init__(self, header: int, exit_addr: int | None, start: int) -> None:
-        self.header = header
+    def __init__(self, exit_addr: int | None, start: int) -> None:
         self.exit = exit_addr
         self.start = start
+        self.exit_types: list[str] | None = None
 
 
 def discover(vm: VM, entry: int) -> list[Instruction]:
     """All instructions reachable from `entry`, in address order; NotStructured if any is bad."""
     program = vm.program
+    assert program is not None
     size = len(program.bytecode)
     seen: dict[int, Instruction] = {}
     work = [entry]
@@ -140,10 +123,9 @@ def discover(vm: VM, entry: int) -> list[Instruction]:
         if op is Op.DONE or op is Op.RET0 or op is Op.RET1:
             continue
         if op is Op.JUMP or op is Op.JUMPZ or op is Op.JUMPNZ:
-            target = ins.arg
-            if target >= size:  # type: ignore[operator]
+            if ins.arg >= size:  # type: ignore[operator]
                 raise NotStructured("jump out of range")
-            work.append(target)  # type: ignore[arg-type]
+            work.append(ins.arg)  # type: ignore[arg-type]
             if op is Op.JUMP:
                 continue
         work.append(ins.next)
@@ -157,20 +139,20 @@ def discover(vm: VM, entry: int) -> list[Instruction]:
 class _Codegen:
     """Emits the Python source of one function from its structured instruction list."""
 
-    def __init__(self, vm: VM, instrs: list[Instruction], nslots: int, toplevel: bool) -> None:
+    def __init__(
+        self, vm: VM, instrs: list[Instruction], slot_types: list[str], toplevel: bool
+    ) -> None:
         self.vm = vm
         self.instrs = instrs
         self.index = {ins.addr: i for i, ins in enumerate(instrs)}
-        self.headers = {
-            ins.arg
-            for ins in instrs
-            if ins.op is Op.JUMP and ins.arg <= ins.addr  # type: ignore[operator]
-        }
+        self.headers = set()
         for ins in instrs:
-            if ins.op in (Op.JUMPZ, Op.JUMPNZ) and ins.arg <= ins.addr:  # type: ignore[operator]
-                raise NotStructured("conditional backward jump")
+            if ins.op in (Op.JUMP, Op.JUMPZ, Op.JUMPNZ) and ins.arg <= ins.addr:  # type: ignore[operator]
+                if ins.op is not Op.JUMP:
+                    raise NotStructured("conditional backward jump")
+                self.headers.add(ins.arg)
         self.toplevel = toplevel
-        self.nslots = nslots
+        self.types = list(slot_types)  # the static type of each live local slot
         self.stack: list[_Expr] = []
         self.lines: list[tuple[int, str, int]] = []
         self.indent = 1
@@ -179,6 +161,7 @@ class _Codegen:
         self.ntemps = 0
         self.consts: dict[str, Any] = {}
         self.used_locals: set[int] = set()
+        self.global_names: set[str] = set()
 
     # ------------------------------------------------------------ helpers
 
@@ -189,52 +172,60 @@ class _Codegen:
 
     def temp(self) -> str:
         self.ntemps += 1
-        return f"t{self.ntemps}"
+        return f"_t{self.ntemps}"
+
+    def push(self, code: str, ty: str = ANY, const: Any = None) -> None:
+        self.stack.append(_Expr(code, ty, const))
 
     def pop(self) -> _Expr:
         if not self.stack:
             raise NotStructured("stack underflow")
         return self.stack.pop()
 
-    def const(self, value: Any) -> _Expr:
+    def literal(self, value: Any) -> None:
         if value is None:
-            return _Expr("None", const=None)
+            self.push("None", NIL)
+            return
+        ty = _KNOWN_CLASS[value.__class__]
         if value.__class__ is float and (math.isinf(value) or value != value or value == 0.0):
             # inf, NaN (keeping its sign bit) and -0.0 have no exact literal: bind the object
-            name = f"_k{len(self.consts)}"
+            name = f"_k{next(_serial)}"
             self.consts[name] = value
-            return _Expr(name, const=value)
-        return _Expr(repr(value), const=value)
+            self.push(name, ty, value)
+        else:
+            self.push(repr(value), ty, value)
 
     @staticmethod
     def val(e: _Expr) -> str:
         """Code for the Buzz value of an entry."""
-        return f"(1 if {e.code} else 0)" if e.kind == "bool" else e.code
+        return f"(1 if {e.code} else 0)" if e.ty == BOOL else e.code
 
     @staticmethod
-    def truth(e: _Expr) -> str:
+    def vtype(e: _Expr) -> str:
+        """The static Buzz type of an entry's value."""
+        return INT if e.ty == BOOL else e.ty
+
+    def truth(self, e: _Expr) -> str:
         """Code for the Buzz truthiness of an entry (only nil and int 0 are false)."""
-        if e.kind == "bool":
-            return e.code
-        if e.const is not _NOCONST:
-            c = e.const
-            return "True" if (c is not None and (c.__class__ is not int or c != 0)) else "False"
-        c = e.code
-        return f"({c} is not None and ({c}.__class__ is not int or {c} != 0))"
+        ty, c = e.ty, e.code
+        if ty == BOOL:
+            return c
+        if ty == NIL:
+            return "False"
+        if ty == INT:
+            return "True" if e.const not in (None, 0) else f"({c} != 0)"
+        if ty in (FLOAT, STR, TABLE, CLOSURE):
+            return "True"
+        return f"({c} is not None and ({c}.__class__ is not _int or {c} != 0))"
 
     def falsity(self, e: _Expr) -> str:
         return f"not {self.truth(e)}"
 
-    def int_checks(self, *entries: _Expr) -> str:
-        """Code testing that every non-constant entry holds an int (bools become 0/1)."""
-        checks = [
-            f"{e.code}.__class__ is int"
-            for e in entries
-            if e.kind != "bool" and e.const.__class__ is not int
-        ]
-        if any(e.const.__class__ not in (int, type(_NOCONST)) for e in entries):
-            return "False"  # a float, string or nil literal never takes the int path
-        return " and ".join(checks) or "True"
+    @staticmethod
+    def int_test(*entries: _Expr) -> str:
+        """Code testing that every entry of unknown type holds an int."""
+        tests = [f"{e.code}.__class__ is _int" for e in entries if e.ty == ANY]
+        return " and ".join(tests) or "True"
 
     def block(self, i: int, j: int, loop: _Loop | None, offset: int) -> None:
         """An indented region; `pass` when it emits nothing."""
@@ -246,13 +237,21 @@ class _Codegen:
         self.indent -= 1
 
     def tick(self, offset: int) -> None:
-        self.emit("_B[0] -= 1", offset)
-        self.emit("if _B[0] <= 0: _tick()", offset)
+        self.emit("_N()", offset)
+
+    def snapshot(self) -> tuple:
+        return (len(self.lines), list(self.types), self.dead, self.indent, self.loops)
+
+    def restore(self, snap: tuple) -> None:
+        n, types, self.dead, self.indent, self.loops = snap
+        del self.lines[n:]
+        self.types = list(types)
 
     # ------------------------------------------------------------ structure
 
-    def region(self, i: int, j: int, loop: _Loop | None) -> None:
-        """Emit instructions [i, j); the symbolic stack is empty at both ends."""
+    def region(self, i: int, j: int, loop: _Loop | None, *, leaves: int = 0) -> None:
+        """Emit instructions [i, j); the symbolic stack is empty at the start and holds
+        `leaves` entries at the end (1 for a `for` condition, 0 everywhere else)."""
         instrs = self.instrs
         while i < j:
             ins = instrs[i]
@@ -267,11 +266,15 @@ class _Codegen:
                 raise NotStructured("unstructured jump")
             self.simple(ins)
             i += 1
-        if self.stack and not self.dead:
+        if len(self.stack) != leaves and not self.dead:
             raise NotStructured("values left on the stack at a block boundary")
 
     def loop(self, i: int, j: int) -> int:
-        """A loop whose header is instruction i; returns the index after it."""
+        """A loop whose header is instruction i; returns the index after it.
+
+        The body is emitted assuming the local types at entry; if the types at the end
+        of an iteration differ, the header types are widened and the body re-emitted.
+        """
         instrs = self.instrs
         header = instrs[i].addr
         if self.stack:
@@ -282,32 +285,48 @@ class _Codegen:
         self.loops += 1
         if self.loops > _MAX_LOOPS:
             raise NotStructured("loops nested too deeply")
-        slots = self.nslots
-        after = self.for_loop(i, j, header)
-        if after is None:
-            k = backs[-1]
-            exit_addr = instrs[k + 1].addr if k + 1 < len(instrs) else None
-            self.emit("while True:", header)
-            self.indent += 1
-            self.region(i, k, _Loop(header, exit_addr, i))
-            self.end_iteration(slots, instrs[k].addr)
-            after = k + 1
+        shape = self.for_shape(i, j, header)
+        snap = self.snapshot()
+        for _ in range(_MAX_PASSES):
+            entry_types = list(self.types)
+            if shape is not None:
+                after, loop, end_types = self.for_loop(i, shape)
+            else:
+                k = backs[-1]
+                exit_addr = instrs[k + 1].addr if k + 1 < len(instrs) else None
+                loop = _Loop(exit_addr, i)
+                self.emit("while True:", header)
+                self.indent += 1
+                self.region(i, k, loop)
+                end_types = None if self.dead else list(self.types)
+                self.end_iteration(len(entry_types), instrs[k].addr)
+                after = k + 1
+            if end_types is not None and len(end_types) != len(entry_types):
+                raise NotStructured("loop body changes the number of locals")
+            widened = entry_types
+            if end_types is not None:
+                widened = [_join(a, b) for a, b in zip(entry_types, end_types, strict=True)]
+            if widened == entry_types:
+                break
+            self.restore(snap)
+            self.types = widened
+        else:
+            raise NotStructured("loop types did not settle")
         self.loops -= 1
         self.dead = False
+        exits = loop.exit_types if loop.exit_types is not None else entry_types
+        self.types = exits
         return after
 
-    def for_loop(self, i: int, j: int, header: int) -> int | None:
-        """The `for` shape: Lc: cond; jumpnz Lb; jump Le; Lu: update; jump Lc; Lb: body; jump Lu."""
+    def for_shape(self, i: int, j: int, header: int) -> tuple[int, int, int, int] | None:
+        """(p, lb, le, lu) when instructions from i have the compiler's `for` shape.
+
+        Lc: cond; jumpnz Lb; jump Le; Lu: update; jump Lc; Lb: body; jump Lu; Le:
+        """
         instrs = self.instrs
         p = i
-        while p < j and instrs[p].op not in (
-            Op.JUMP,
-            Op.JUMPZ,
-            Op.JUMPNZ,
-            Op.RET0,
-            Op.RET1,
-            Op.DONE,
-        ):
+        control = (Op.JUMP, Op.JUMPZ, Op.JUMPNZ, Op.RET0, Op.RET1, Op.DONE)
+        while p < j and instrs[p].op not in control:
             p += 1
         if p + 2 >= j or instrs[p].op is not Op.JUMPNZ or instrs[p + 1].op is not Op.JUMP:
             return None
@@ -320,27 +339,44 @@ class _Codegen:
             return None
         if instrs[le - 1].op is not Op.JUMP or instrs[le - 1].arg != instrs[lu].addr:
             return None
-        if instrs[lu].addr not in self.headers:
-            return None
-        slots = self.nslots
-        self.emit("while True:", header)
-        self.indent += 1
-        loop = _Loop(header, instrs[le].addr, i)
-        self.region(i, p, loop)
-        cond = self.pop()
-        self.emit(f"if {self.falsity(cond)}: break", instrs[p].addr)
-        self.region(lb, le - 1, _Loop(instrs[lu].addr, instrs[le].addr, lb))
-        self.region(lu, lb - 1, _Loop(instrs[lu].addr, instrs[le].addr, lu))
-        self.end_iteration(slots, instrs[lb - 1].addr)
-        return le
+        return p, lb, le, lu
 
-    def end_iteration(self, slots: int, offset: int) -> None:
+    def for_loop(
+        self, i: int, shape: tuple[int, int, int, int]
+    ) -> tuple[int, _Loop, list[str] | None]:
+        p, lb, le, lu = shape
+        instrs = self.instrs
+        nslots = len(self.types)
+        self.emit("while True:", instrs[i].addr)
+        self.indent += 1
+        loop = _Loop(instrs[le].addr, i)
+        self.region(i, p, loop, leaves=1)
+        cond = self.pop()
+        self.note_exit(loop)
+        self.emit(f"if {self.falsity(cond)}: break", instrs[p].addr)
+        self.region(lb, le - 1, _Loop(instrs[le].addr, lb))
+        self.region(lu, lb - 1, _Loop(instrs[le].addr, lu))
+        end_types = None if self.dead else list(self.types)
+        self.end_iteration(nslots, instrs[lb - 1].addr)
+        return le, loop, end_types
+
+    def end_iteration(self, nslots: int, offset: int) -> None:
         if not self.dead:
-            if self.nslots != slots:
+            if len(self.types) != nslots:
                 raise NotStructured("loop body changes the number of locals")
             self.tick(offset)
         self.indent -= 1
-        self.nslots = slots
+
+    def note_exit(self, loop: _Loop) -> None:
+        """Record the local types at a `break` (joined over every exit of the loop)."""
+        if loop.exit_types is None:
+            loop.exit_types = list(self.types)
+        elif len(loop.exit_types) != len(self.types):
+            raise NotStructured("loop exits with different numbers of locals")
+        else:
+            loop.exit_types = [
+                _join(a, b) for a, b in zip(loop.exit_types, self.types, strict=True)
+            ]
 
     def branch(self, i: int, j: int, loop: _Loop | None) -> int:
         """A conditional jump at instruction i: a loop exit, an if, or an if/else."""
@@ -354,114 +390,102 @@ class _Codegen:
         stays = self.truth(cond) if ins.op is Op.JUMPZ else self.falsity(cond)
         target = ins.arg
         if loop is not None and target == loop.exit:
+            self.note_exit(loop)
             self.emit(f"if {taken}: break", ins.addr)
             return i + 1
         m = self.index.get(target)  # type: ignore[arg-type]
         if m is None or m <= i or m > j:
             raise NotStructured("branch leaves its region")
-        slots = self.nslots
+        entry_types = list(self.types)
         self.emit(f"if {stays}:", ins.addr)
         last = instrs[m - 1]
         n2 = None
         if m - 1 > i and last.op is Op.JUMP and last.arg > target:  # type: ignore[operator]
             n2 = self.index.get(last.arg)  # type: ignore[arg-type]
-            if n2 is None or n2 > j:
+            if n2 is not None and n2 > j:
                 n2 = None
-        then_end = m - 1 if n2 is not None else m
-        self.block(i + 1, then_end, loop, ins.addr)
-        then_dead, then_slots = self.dead, self.nslots
+        self.block(i + 1, m - 1 if n2 is not None else m, loop, ins.addr)
+        then_dead, then_types = self.dead, self.types
         self.dead = False
-        self.nslots = slots
+        self.types = list(entry_types)
         if n2 is None:
-            if not then_dead and then_slots != slots:
-                raise NotStructured("if body changes the number of locals")
-            return m
-        self.emit("else:", last.addr)
-        self.block(m, n2, loop, last.addr)
-        else_dead, else_slots = self.dead, self.nslots
+            else_dead, else_types = False, entry_types
+            after = m
+        else:
+            self.emit("else:", last.addr)
+            self.block(m, n2, loop, last.addr)
+            else_dead, else_types = self.dead, self.types
+            after = n2
         if then_dead and else_dead:
             self.dead = True
-        elif then_dead:
-            self.nslots = else_slots
-        elif else_dead:
-            self.nslots = then_slots
-        elif then_slots != else_slots:
+            self.types = entry_types
+        elif then_dead or else_dead:
+            self.types = list(else_types if then_dead else then_types)
+        elif len(then_types) != len(else_types):
             raise NotStructured("branches leave different numbers of locals")
         else:
-            self.nslots = then_slots
-        return n2
+            self.types = [_join(a, b) for a, b in zip(then_types, else_types, strict=True)]
+        return after
 
     # ------------------------------------------------------------ instructions
 
     def simple(self, ins: Instruction) -> None:
         """One straight-line instruction."""
+        if self.dead:
+            return  # unreachable code after a return inside a structured block
         op = ins.op
         at = ins.addr
-        push = self.stack.append
-        if self.dead:
-            # Unreachable code after a return inside a structured block: nothing to emit.
-            return
         if op is Op.NOP:
             return
         if op is Op.PUSHNIL:
-            push(self.const(None))
+            self.literal(None)
         elif op is Op.PUSHI or op is Op.PUSHF:
-            push(self.const(ins.arg))
+            self.literal(ins.arg)
         elif op is Op.PUSHS:
-            s = self.vm.program.string(ins.arg)  # type: ignore[arg-type]
+            s = self.vm.program.string(ins.arg)  # type: ignore[union-attr, arg-type]
             if s is None:
                 raise NotStructured("unknown string id")
-            push(_Expr(repr(s), const=s))
+            self.literal(s)
         elif op is Op.DUP:
             e = self.pop()
-            push(e)
-            push(e)
+            self.stack += [e, e]
         elif op is Op.POP:
             self.pop()
-        elif op in _ARITH:
+        elif op in (Op.ADD, Op.SUB, Op.MUL):
             self.arith(ins)
-        elif op in _OTHER_BINARY:
-            b, a = self.pop(), self.pop()
-            t = self.temp()
-            self.emit(f"{t} = {_OTHER_BINARY[op]}({self.val(a)}, {self.val(b)})", at)
-            push(_Expr(t))
+        elif op in _HELPER_BINARY:
+            self.helper_binary(ins)
         elif op in _COMPARE:
             self.compare(ins)
-        elif op is Op.UNM or op is Op.BNOT:
+        elif op is Op.UNM:
+            self.unary_minus(ins)
+        elif op is Op.BNOT:
             a = self.pop()
             t = self.temp()
-            fn = "_unm" if op is Op.UNM else "_bnot"
-            self.emit(f"{t} = {fn}({self.val(a)})", at)
-            push(_Expr(t))
+            if a.ty == INT:
+                self.emit(f"{t} = ~{a.code}", at)
+            else:
+                self.emit(f"{t} = _bnot({self.val(a)})", at)
+            self.push(t, INT)
         elif op is Op.LNOT:
             a = self.pop()
             t = self.temp()
             self.emit(f"{t} = {self.falsity(a)}", at)
-            push(_Expr(t, "bool"))
+            self.push(t, BOOL)
         elif op is Op.LAND or op is Op.LOR:
             b, a = self.pop(), self.pop()
             t = self.temp()
             word = "and" if op is Op.LAND else "or"
             self.emit(f"{t} = ({self.truth(a)}) {word} ({self.truth(b)})", at)
-            push(_Expr(t, "bool"))
+            self.push(t, BOOL)
         elif op is Op.GLOAD:
-            name = self.pop()
-            t = self.temp()
-            if name.const.__class__ is str:
-                self.emit(f"{t} = _G[{name.code}]", at)
-            else:
-                self.emit(f"{t} = _gload({self.val(name)})", at)
-            push(_Expr(t))
+            self.gload(ins)
         elif op is Op.GSTORE:
-            v, name = self.pop(), self.pop()
-            if name.const.__class__ is str:
-                self.emit(f"_G[{name.code}] = {self.val(v)}", at)
-            else:
-                self.emit(f"_gstore({self.val(name)}, {self.val(v)})", at)
+            self.gstore(ins)
         elif op is Op.PUSHT:
             t = self.temp()
             self.emit(f"{t} = _Table()", at)
-            push(_Expr(t))
+            self.push(t, TABLE)
         elif op is Op.TPUT:
             self.tput(ins)
         elif op is Op.TGET:
@@ -472,35 +496,36 @@ class _Codegen:
             t = self.temp()
             entry = self.entry_name(ins.arg, 1)  # type: ignore[arg-type]
             self.emit(f"{t} = _Closure({ins.arg}, False, (None,), {entry}.fn)", at)
-            push(_Expr(t))
+            self.push(t, CLOSURE)
         elif op is Op.PUSHCC:
             t = self.temp()
             self.emit(f"{t} = _native({ins.arg})", at)
-            push(_Expr(t))
+            self.push(t, CLOSURE)
         elif op is Op.PUSHL:
-            n = self.nslots
+            n = len(self.types)
             if n == 0:
                 actrec, size = "(None,)", 1
             else:
-                actrec, size = "(" + "".join(f"l{k}, " for k in range(n)) + ")", n
+                actrec, size = "(" + "".join(f"_l{k}, " for k in range(n)) + ")", n
                 self.used_locals.update(range(n))
             t = self.temp()
             entry = self.entry_name(ins.arg, size)  # type: ignore[arg-type]
             self.emit(f"{t} = _Closure({ins.arg}, False, {actrec}, {entry}.fn)", at)
-            push(_Expr(t))
+            self.push(t, CLOSURE)
         elif op is Op.LLOAD:
             k = ins.arg
-            if k >= self.nslots:  # type: ignore[operator]
+            if k >= len(self.types):  # type: ignore[operator]
                 raise NotStructured("reads a local that does not exist")
             self.used_locals.add(k)  # type: ignore[arg-type]
-            push(_Expr(f"l{k}"))
+            self.push(f"_l{k}", self.types[k])  # type: ignore[index]
         elif op is Op.LSTORE:
             self.lstore(ins)
         elif op is Op.LREMOVE:
             n = ins.arg
-            if n + (0 if self.toplevel else 1) > self.nslots:  # type: ignore[operator]
+            if n + (0 if self.toplevel else 1) > len(self.types):  # type: ignore[operator]
                 raise NotStructured("removes locals that do not exist")
-            self.nslots -= n  # type: ignore[operator]
+            if n:
+                del self.types[len(self.types) - n :]  # type: ignore[operator]
         elif op is Op.RET0 or op is Op.RET1:
             if self.toplevel:
                 raise NotStructured("return at top level")
@@ -516,91 +541,202 @@ class _Codegen:
             raise NotStructured(f"unexpected {op.mnemonic}")
 
     def arith(self, ins: Instruction) -> None:
+        """add, sub, mul: int32 wrap for ints, binary32 rounding for floats."""
         b, a = self.pop(), self.pop()
         sym, slow = _ARITH[ins.op]
         t = self.temp()
         av, bv = self.val(a), self.val(b)
-        fast = self.int_checks(a, b)
+        ta, tb = self.vtype(a), self.vtype(b)
         at = ins.addr
-        self.emit(f"{t} = {av} {sym} {bv} if {fast} else {slow}({av}, {bv})", at)
-        self.emit(f"if not -2147483648 <= {t} <= 2147483647: {t} = _wrap({t})", at)
-        self.stack.append(_Expr(t))
+        if ta == INT and tb == INT:
+            self.emit(f"{t} = {av} {sym} {bv}", at)
+            self.emit(self.wrap_check(t, ins.op, b), at)
+            self.push(t, INT)
+        elif ta == FLOAT and tb == FLOAT:
+            self.emit(f"_F[0] = {av} {sym} {bv}", at)
+            self.emit(f"{t} = _F[0]", at)
+            self.push(t, FLOAT)
+        elif ta in (INT, ANY) and tb in (INT, ANY):
+            self.emit(f"if {self.int_test(a, b)}:", at)
+            self.emit(f"    {t} = {av} {sym} {bv}", at)
+            self.emit(f"    {self.wrap_check(t, ins.op, b)}", at)
+            self.emit(f"else: {t} = {slow}({av}, {bv})", at)
+            self.push(t, ANY)
+        else:
+            self.emit(f"{t} = {slow}({av}, {bv})", at)
+            numeric = ta in (INT, FLOAT) and tb in (INT, FLOAT)
+            self.push(t, FLOAT if numeric or FLOAT in (ta, tb) else ANY)
+
+    @staticmethod
+    def wrap_check(t: str, op: Op, b: _Expr) -> str:
+        """The int32 overflow test; adding or subtracting a small literal can only go one way."""
+        small = b.ty == INT and b.const is not None and 0 <= b.const < 0x40000000
+        if small and op is Op.ADD:
+            return f"if {t} > 2147483647: {t} = _i32({t})"
+        if small and op is Op.SUB:
+            return f"if {t} < -2147483648: {t} = _i32({t})"
+        return f"if not -2147483648 <= {t} <= 2147483647: {t} = _i32({t})"
+
+    def helper_binary(self, ins: Instruction) -> None:
+        b, a = self.pop(), self.pop()
+        t = self.temp()
+        ta, tb = self.vtype(a), self.vtype(b)
+        av, bv = self.val(a), self.val(b)
+        at = ins.addr
+        op = ins.op
+        if ta == INT and tb == INT and op in (Op.BAND, Op.BOR, Op.RSHIFT):
+            expr = {Op.BAND: f"{av} & {bv}", Op.BOR: f"{av} | {bv}"}.get(op)
+            self.emit(f"{t} = {expr or f'{av} >> ({bv} & 31)'}", at)
+            self.push(t, INT)
+            return
+        self.emit(f"{t} = {_HELPER_BINARY[op]}({av}, {bv})", at)
+        if op is Op.POW:
+            ty = FLOAT
+        elif op in (Op.BAND, Op.BOR, Op.LSHIFT, Op.RSHIFT) or (ta == INT and tb == INT):
+            ty = INT
+        elif ta in (INT, FLOAT) and tb in (INT, FLOAT):
+            ty = FLOAT
+        else:
+            ty = ANY
+        self.push(t, ty)
+
+    def unary_minus(self, ins: Instruction) -> None:
+        a = self.pop()
+        t = self.temp()
+        if a.ty == INT:
+            self.emit(f"{t} = -{a.code}", ins.addr)
+            self.emit(f"if {t} == 2147483648: {t} = -2147483648", ins.addr)
+            self.push(t, INT)
+        elif a.ty == FLOAT:
+            self.emit(f"{t} = -{a.code}", ins.addr)
+            self.push(t, FLOAT)
+        else:
+            self.emit(f"{t} = _unm({self.val(a)})", ins.addr)
+            self.push(t, ANY)
 
     def compare(self, ins: Instruction) -> None:
         b, a = self.pop(), self.pop()
-        sym, slow, any_same_class = _COMPARE[ins.op]
+        sym, slow = _COMPARE[ins.op]
         t = self.temp()
         av, bv = self.val(a), self.val(b)
-        if any_same_class:
-            # ==/!= are right for any two values of one class (identity for tables etc.).
-            fast = f"{av}.__class__ is {bv}.__class__"
+        ta, tb = self.vtype(a), self.vtype(b)
+        equality = ins.op in (Op.EQ, Op.NEQ)
+        same = ta == tb and ta != ANY
+        if same and (equality or ta in (INT, FLOAT, STR)):
+            # Python's own comparison is Buzz's for these (IEEE for floats, bytes for strings).
+            self.emit(f"{t} = {av} {sym} {bv}", ins.addr)
+        elif equality and ta != ANY and tb != ANY and NIL in (ta, tb):
+            self.emit(f"{t} = {'False' if ins.op is Op.EQ else 'True'}", ins.addr)
+        elif equality and ANY in (ta, tb):
+            self.emit(
+                f"{t} = ({av} {sym} {bv}) if {av}.__class__ is {bv}.__class__ "
+                f"else {slow}({av}, {bv})",
+                ins.addr,
+            )
+        elif ta in (INT, ANY) and tb in (INT, ANY) and not equality:
+            self.emit(
+                f"{t} = ({av} {sym} {bv}) if {self.int_test(a, b)} else {slow}({av}, {bv})",
+                ins.addr,
+            )
         else:
-            fast = self.int_checks(a, b)
-        self.emit(f"{t} = ({av} {sym} {bv}) if {fast} else {slow}({av}, {bv})", ins.addr)
-        self.stack.append(_Expr(t, "bool"))
+            self.emit(f"{t} = {slow}({av}, {bv})", ins.addr)
+        self.push(t, BOOL)
+
+    def gload(self, ins: Instruction) -> None:
+        name = self.pop()
+        t = self.temp()
+        pyname = python_name(name.const) if name.ty == STR else None
+        if pyname is not None:
+            self.emit(f"{t} = {pyname}", ins.addr)
+        else:
+            self.emit(f"{t} = _gload({self.val(name)})", ins.addr)
+        self.push(t)
+
+    def gstore(self, ins: Instruction) -> None:
+        v, name = self.pop(), self.pop()
+        pyname = python_name(name.const) if name.ty == STR else None
+        if pyname is not None:
+            self.global_names.add(pyname)
+            self.emit(f"{pyname} = {self.val(v)}", ins.addr)
+        else:
+            self.emit(f"_gstore({self.val(name)}, {self.val(v)})", ins.addr)
+
+    def key_test(self, k: _Expr) -> list[str]:
+        if self.vtype(k) in (INT, STR):
+            return []
+        return [f"({k.code}.__class__ is _str or {k.code}.__class__ is _int)"]
 
     def tget(self, ins: Instruction) -> None:
         k, tab = self.pop(), self.pop()
         t = self.temp()
-        kv = self.val(k)
-        tc = self.val(tab)
-        if k.const.__class__ in (str, int):
-            fast = f"{tc}.__class__ is _Table"
-        else:
-            fast = f"{tc}.__class__ is _Table and ({kv}.__class__ is str or {kv}.__class__ is int)"
+        kv, tc = self.val(k), self.val(tab)
+        tests = ([] if tab.ty == TABLE else [f"{tc}.__class__ is _Table"]) + self.key_test(k)
         # Attributed to the previous instruction when it fails (reference oldpc rule).
         at = self.prev_addr(ins)
-        self.emit(f"{t} = {tc}[{kv}] if {fast} else _tget({tc}, {kv})", at)
-        self.stack.append(_Expr(t))
+        if tests:
+            self.emit(f"{t} = {tc}[{kv}] if {' and '.join(tests)} else _tget({tc}, {kv})", at)
+        else:
+            self.emit(f"{t} = {tc}[{kv}]", at)
+        self.push(t)
 
     def tput(self, ins: Instruction) -> None:
         v, k, tab = self.pop(), self.pop(), self.pop()
         kv, vv, tc = self.val(k), self.val(v), self.val(tab)
-        checks = [f"{tc}.__class__ is _Table"]
-        if k.const.__class__ not in (str, int):
-            checks.append(f"({kv}.__class__ is str or {kv}.__class__ is int)")
-        if v.kind != "bool" and v.const is _NOCONST:
-            checks.append(f"{vv} is not None and {vv}.__class__ is not _Closure")
-        elif v.const is None:
-            checks = ["False"]
         at = self.prev_addr(ins)
-        self.emit(f"if {' and '.join(checks)}: {tc}[{kv}] = {vv}", at)
-        self.emit(f"else: _tput({tc}, {kv}, {vv})", at)
+        vt = self.vtype(v)
+        if vt in (NIL, CLOSURE):  # deletion, or a closure to re-bind: the full rule
+            self.emit(f"_tput({tc}, {kv}, {vv})", at)
+            return
+        tests = ([] if tab.ty == TABLE else [f"{tc}.__class__ is _Table"]) + self.key_test(k)
+        if vt == ANY:
+            tests.append(f"{vv} is not None and {vv}.__class__ is not _Closure")
+        if tests:
+            self.emit(f"if {' and '.join(tests)}: {tc}[{kv}] = {vv}", at)
+            self.emit(f"else: _tput({tc}, {kv}, {vv})", at)
+        else:
+            self.emit(f"{tc}[{kv}] = {vv}", at)
 
     def call(self, ins: Instruction) -> None:
         n = self.pop()
-        if n.const.__class__ is not int or n.const < 0:
+        if n.ty != INT or n.const is None or n.const < 0:
             raise NotStructured("call with a computed argument count")
         args = [self.pop() for _ in range(n.const)][::-1]
         c = self.pop()
         self.pop()  # the self slot below the closure: its value is ignored
         t = self.temp()
         argv = "".join(f", {self.val(a)}" for a in args)
-        if c.const is not _NOCONST or c.kind == "bool":
-            self.emit(f"{t} = _not_callable({self.val(c)})", ins.addr)
+        at = ins.addr
+        if c.ty not in (ANY, CLOSURE):
+            self.emit(f"{t} = _not_callable({self.val(c)})", at)
         else:
             cc = c.code
+            # Zero-cost try: a non-closure has no `.fn`, a wrong argument count is a
+            # TypeError raised at this very call; _call_failed tells those from errors
+            # raised inside the callee, which it re-raises.
+            self.emit(f"try: {t} = {cc}.fn({cc}{argv})", at)
             self.emit(
-                f"{t} = {cc}.fn({cc}{argv}) if {cc}.__class__ is _Closure else _not_callable({cc})",
-                ins.addr,
+                f"except (_TypeError, _AttributeError) as _e: "
+                f"{t} = _call_failed(_e, {cc}, ({''.join(f'{self.val(a)}, ' for a in args)}))",
+                at,
             )
-        self.stack.append(_Expr(t))
+        self.push(t)
 
     def lstore(self, ins: Instruction) -> None:
         k = ins.arg
         v = self.pop()
-        if k > self.nslots:  # type: ignore[operator]
+        if k > len(self.types):  # type: ignore[operator]
             raise NotStructured("stores past the end of the locals")
-        if k == self.nslots:
-            self.nslots += 1
-        name = f"l{k}"
+        if k == len(self.types):
+            self.types.append(ANY)
+        name = f"_l{k}"
         # Values already on the stack that read this local must keep the old value.
         for idx, e in enumerate(self.stack):
-            if name in e.code:
+            if re.search(rf"\b{name}\b", e.code):
                 t = self.temp()
                 self.emit(f"{t} = {self.val(e)}", ins.addr)
-                self.stack[idx] = _Expr(t)
+                self.stack[idx] = _Expr(t, self.vtype(e))
         self.emit(f"{name} = {self.val(v)}", ins.addr)
+        self.types[k] = self.vtype(v)  # type: ignore[index]
         self.used_locals.add(k)  # type: ignore[arg-type]
 
     def prev_addr(self, ins: Instruction) -> int:
@@ -613,37 +749,82 @@ class _Codegen:
         return name
 
 
+_ARITH = {Op.ADD: ("+", "_add"), Op.SUB: ("-", "_sub"), Op.MUL: ("*", "_mul")}
+_HELPER_BINARY = {
+    Op.DIV: "_div",
+    Op.MOD: "_mod",
+    Op.POW: "_pow",
+    Op.BAND: "_band",
+    Op.BOR: "_bor",
+    Op.LSHIFT: "_lshift",
+    Op.RSHIFT: "_rshift",
+}
+_COMPARE = {
+    Op.EQ: ("==", "_eq"),
+    Op.NEQ: ("!=", "_neq"),
+    Op.LT: ("<", "_lt"),
+    Op.LTE: ("<=", "_lte"),
+    Op.GT: (">", "_gt"),
+    Op.GTE: (">=", "_gte"),
+}
+
+
+def param_types(args: tuple) -> tuple[str, ...]:
+    """The types to specialize on for these first-call arguments (ANY = no guard)."""
+    return tuple(_KNOWN_CLASS.get(a.__class__, ANY) for a in args)
+
+
+_GUARD_CLASS = {INT: "_int", FLOAT: "_float", STR: "_str", TABLE: "_Table"}
+
+
 def translate(
-    vm: VM, addr: int, n_actrec: int, nargs: int, *, toplevel: bool = False
+    vm: VM,
+    addr: int,
+    n_actrec: int,
+    nargs: int,
+    *,
+    toplevel: bool = False,
+    speculate: tuple[str, ...] | None = None,
 ) -> Callable[..., Any]:
     """Python function for the bytecode function at `addr`, or raise NotStructured.
 
     For a function: called as `f(closure, *args)` with `n_actrec` captured slots and
-    `nargs` arguments (another count is passed on to the VM). At top level: `f()`.
+    exactly `nargs` arguments. With `speculate`, argument k is assumed to have type
+    `speculate[k]`; a call that breaks the assumption goes to the general translation.
+    At top level: `f()`.
     """
     instrs = discover(vm, addr)
-    nslots = 0 if toplevel else n_actrec + nargs
-    gen = _Codegen(vm, instrs, nslots, toplevel)
+    if toplevel:
+        slot_types: list[str] = []
+    else:
+        spec = speculate or (ANY,) * nargs
+        slot_types = [ANY] * n_actrec + list(spec)
+    gen = _Codegen(vm, instrs, slot_types, toplevel)
     gen.region(0, len(instrs), None)
     first = instrs[0].addr
-    name = f"<buzz:{vm.program.path}@{addr}#{next(_serial)}>"
+    name = f"<buzz:{vm.program.path}@{addr}#{next(_serial)}>"  # type: ignore[union-attr]
+    prologue: list[str] = []
     if toplevel:
-        head = ["def _f():"]
-        prologue: list[str] = []
+        head = "def _f():"
     else:
-        params = [f"l{n_actrec + k}" for k in range(nargs)]
-        sig = "".join(f", {p}=_M" for p in params)
-        head = [f"def _f(C{sig}, *X):"]
-        last = params[-1] if params else None
-        guard = f"X or {last} is _M" if last else "X"
-        arglist = "(" + "".join(f"{p}, " for p in params) + ") + X"
-        prologue = [f"if {guard}: return _other{addr}_{n_actrec}(C, {arglist})"]
-        captured = sorted(k for k in gen.used_locals if k < n_actrec)
-        if captured:
-            names = ", ".join(f"l{k}" for k in range(n_actrec))
-            prologue.append(f"{names}, = C.actrec")
-        prologue += ["_B[0] -= 1", "if _B[0] <= 0: _tick()"]
-    source = list(head)
+        params = [f"_l{n_actrec + k}" for k in range(nargs)]
+        head = f"def _f(_C{''.join(f', {p}' for p in params)}):"
+        guards = [
+            f"{p}.__class__ is not {_GUARD_CLASS[ty]}"
+            for p, ty in zip(params, speculate or (), strict=False)
+            if ty in _GUARD_CLASS
+        ]
+        if guards:
+            general = f"_g{addr}_{n_actrec}_{nargs}"
+            gen.consts[general] = vm.entry(addr, n_actrec).call_general
+            call = f"{general}(_C{''.join(f', {p}' for p in params)})"
+            prologue.append(f"if {' or '.join(guards)}: return {call}")
+        prologue.append("_N()")
+        if any(k < n_actrec for k in gen.used_locals):
+            prologue.append(f"{', '.join(f'_l{k}' for k in range(n_actrec))}, = _C.actrec")
+    if gen.global_names:
+        prologue.insert(0, f"global {', '.join(sorted(gen.global_names))}")
+    source = [head]
     offsets = [first, first]  # line numbers start at 1; index 0 is unused
     for text in prologue:
         source.append("    " + text)
@@ -655,26 +836,38 @@ def translate(
         source.append("    return None")
         offsets.append(first)
     namespace = vm.namespace()
-    namespace.update(gen.consts)
-    if not toplevel:
-        namespace[f"_other{addr}_{n_actrec}"] = vm.entry(addr, n_actrec).other
+    for key, value in gen.consts.items():
+        namespace.setdefault(key, value)
+    text = "\n".join(source) + "\n"
+    if os.environ.get("BVM_DUMP_PY"):  # a developer's window into the translator
+        sys.stderr.write(f"# {name}\n{text}\n")
     try:
-        code = compile("\n".join(source) + "\n", name, "exec")
+        code = compile(text, name, "exec")
     except (SyntaxError, RecursionError, MemoryError, ValueError) as e:
         raise NotStructured(f"generated code did not compile: {e}") from None
-    exec(code, namespace)
+    local: dict[str, Any] = {}
+    exec(code, namespace, local)
     LINE_MAPS[name] = offsets
-    return namespace["_f"]
+    return local["_f"]
 
 
-def base_namespace() -> dict[str, Any]:
-    """Names every generated function can use, independent of the VM."""
+def _not_callable(c: Any) -> Any:
+    raise BuzzError(f"type mismatch: expected closure, got {type_name(c)}")
+
+
+def helpers() -> dict[str, Any]:
+    """Names every generated function uses, independent of the VM (all start with `_`)."""
     return {
-        "_M": MISSING,
+        "_int": int,
+        "_float": float,
+        "_str": str,
+        "_TypeError": TypeError,
+        "_AttributeError": AttributeError,
         "_Table": Table,
         "_Closure": Closure,
         "_Halt": Halt,
-        "_wrap": _wrap,
+        "_F": F32_CELL,
+        "_i32": i32,
         "_not_callable": _not_callable,
         "_add": ops.add,
         "_sub": ops.sub,
@@ -689,7 +882,7 @@ def base_namespace() -> dict[str, Any]:
         "_unm": ops.unm,
         "_bnot": ops.bnot,
         "_eq": ops.equals,
-        "_neq": lambda a, b: not ops.equals(a, b),
+        "_neq": ops.not_equals,
         "_lt": ops.less,
         "_lte": ops.less_equal,
         "_gt": ops.greater,

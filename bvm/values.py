@@ -22,7 +22,9 @@ INT_MIN = -0x80000000
 INT_MAX = 0x7FFFFFFF
 
 # A C-style (double)->(float) conversion: correctly rounded, overflow -> inf, no exception.
-_F32 = memoryview(bytearray(4)).cast("f")
+# Translated code assigns to and reads back this one-element binary32 array inline.
+F32_CELL = memoryview(bytearray(4)).cast("f")
+_F32 = F32_CELL
 
 
 def f32(x: float) -> float:

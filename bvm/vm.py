@@ -15,22 +15,23 @@ bvm/interp.py for whatever the translator declines. Both call closures the same 
 from __future__ import annotations
 
 import inspect
-import time
+import itertools
+import logging
 from collections.abc import Callable
 from typing import Any
 
 from bvm import translate as _translate
-from bvm.errors import BuzzBudgetExceeded, BuzzError
+from bvm.budget import Budget
+from bvm.errors import BuzzError
 from bvm.interp import Halt, interpret
 from bvm.program import Program
 from bvm.values import Closure, to_buzz, to_python, type_name
 
-# How many loop iterations and calls run between two checks of the step budget.
-_TICK_CHUNK = 1000
+_log = logging.getLogger("bvm")
 
 
-class Globals(dict):
-    """Global variables by name; an absent name reads as nil."""
+class _NilBuiltins(dict):
+    """The builtins of translated code: a global that no one has set reads as nil."""
 
     __slots__ = ()
 
@@ -41,23 +42,25 @@ class Globals(dict):
 class Entry:
     """The way into one bytecode function for closures capturing `n_actrec` slots.
 
-    Translations are made per argument count, on first use. The first count seen
-    becomes `fn`, which new closures call directly; other counts go through `other`.
+    Translations are made per argument count on first use, specialized on the argument
+    types of that first call (guarded at entry). The first count seen becomes `fn`,
+    which new closures call directly; other counts go through `other`.
     """
 
-    __slots__ = ("vm", "addr", "n_actrec", "by_arity", "fn", "_generic")
+    __slots__ = ("vm", "addr", "n_actrec", "by_arity", "general_by_arity", "fn", "_generic")
 
     def __init__(self, vm: VM, addr: int, n_actrec: int) -> None:
         self.vm = vm
         self.addr = addr
         self.n_actrec = n_actrec
         self.by_arity: dict[int, Callable[..., Any]] = {}
+        self.general_by_arity: dict[int, Callable[..., Any]] = {}
         self._generic = self.generic
         self.fn: Callable[..., Any] = self._generic
 
     def generic(self, closure: Closure, *args: Any) -> Any:
         """First call through a closure: build the translation and patch the closure."""
-        f = self.for_arity(len(args))
+        f = self.for_call(args)
         if self.fn is self._generic:
             self.fn = f
         if closure.fn is self._generic and f is self.fn:
@@ -65,28 +68,50 @@ class Entry:
         return f(closure, *args)
 
     def other(self, closure: Closure, args: tuple) -> Any:
-        """A call with a different argument count than the translation expected."""
-        return self.for_arity(len(args))(closure, *args)
+        """A call with another argument count than the closure's translation expects."""
+        return self.for_call(args)(closure, *args)
 
-    def for_arity(self, nargs: int) -> Callable[..., Any]:
-        """The callable for `nargs` arguments: translated, or interpreted as a fallback."""
-        f = self.by_arity.get(nargs)
+    def for_call(self, args: tuple) -> Callable[..., Any]:
+        """The callable for this many arguments, specialized on these arguments' types."""
+        f = self.by_arity.get(len(args))
+        if f is None:
+            spec = _translate.param_types(args)
+            if not self.vm.translate or all(t == _translate.ANY for t in spec):
+                f = self.general(len(args))
+            else:
+                try:
+                    f = _translate.translate(
+                        self.vm, self.addr, self.n_actrec, len(args), speculate=spec
+                    )
+                except _translate.NotStructured as e:
+                    _log.debug("function @%d (specialized): not translated: %s", self.addr, e)
+                    f = self.general(len(args))
+            self.by_arity[len(args)] = f
+        return f
+
+    def general(self, nargs: int) -> Callable[..., Any]:
+        """The unspecialized callable for `nargs` arguments: translated, else interpreted."""
+        f = self.general_by_arity.get(nargs)
+        if f is None and not self.vm.translate:
+            f = self.general_by_arity[nargs] = self._interpreted()
         if f is None:
             try:
                 f = _translate.translate(self.vm, self.addr, self.n_actrec, nargs)
-            except _translate.NotStructured:
+            except _translate.NotStructured as e:
+                _log.info("function @%d runs on the interpreter: %s", self.addr, e)
                 f = self._interpreted()
-            self.by_arity[nargs] = f
+            self.general_by_arity[nargs] = f
         return f
+
+    def call_general(self, closure: Closure, *args: Any) -> Any:
+        """Where a specialized translation sends the calls its entry guard rejects."""
+        return self.general(len(args))(closure, *args)
 
     def _interpreted(self) -> Callable[..., Any]:
         vm, addr = self.vm, self.addr
 
         def run(closure: Closure, *args: Any) -> Any:
-            budget = vm.budget_cell
-            budget[0] -= 1
-            if budget[0] <= 0:
-                vm.tick()
+            vm.globals["_N"]()
             return interpret(vm, addr, [*closure.actrec, *args])
 
         return run
@@ -102,24 +127,56 @@ class VM:
         rng_seed: int | None = None,
         max_ticks: int | None = None,
         max_seconds: float | None = None,
+        translate: bool = True,
     ) -> None:
-        """`max_ticks` bounds the loop iterations plus calls of one entry (execute/call);
-        `max_seconds` bounds its wall time. Exceeding either is a BuzzBudgetExceeded."""
+        """`max_ticks` bounds the loop iterations plus calls of one entry (execute or call);
+        `max_seconds` bounds its wall time. Exceeding either is a BuzzBudgetExceeded.
+        `translate=False` runs everything on the reference interpreter (for testing)."""
         self.robot_id = robot_id & 0xFFFF
+        self.translate = translate
         self.rng_seed = rng_seed
-        self.max_ticks = max_ticks
-        self.max_seconds = max_seconds
-        self.globals: Globals = Globals()
+        # Buzz globals and the helpers of translated code share one dict: it is the
+        # generated functions' module globals. Buzz names never start with "_".
+        self.globals: dict[str, Any] = {}
+        self._hidden: dict[str, Any] = {}  # globals with "_" names (hand-made bytecode only)
+        self.budget = Budget(self.globals)
+        self.budget.max_ticks = max_ticks
+        self.budget.max_seconds = max_seconds
         self.program: Program | None = None
         self.state = "no code"
         self.error: BuzzError | None = None
         self.natives: list[Closure | None] = []
-        self.budget_cell = [_TICK_CHUNK]
-        self._ticks_left: int | None = None
-        self._deadline: float | None = None
         self._entries: dict[tuple[int, int], Entry] = {}
         self._global_start = 0
-        self._namespace: dict[str, Any] | None = None
+        self._install_helpers()
+
+    @property
+    def max_ticks(self) -> int | None:
+        """Loop iterations plus calls allowed per entry (None: unbounded)."""
+        return self.budget.max_ticks
+
+    @max_ticks.setter
+    def max_ticks(self, value: int | None) -> None:
+        self.budget.max_ticks = value
+
+    @property
+    def max_seconds(self) -> float | None:
+        """Wall time allowed per entry (None: unbounded)."""
+        return self.budget.max_seconds
+
+    @max_seconds.setter
+    def max_seconds(self, value: float | None) -> None:
+        self.budget.max_seconds = value
+
+    def _install_helpers(self) -> None:
+        g = self.globals
+        g.update(_translate.helpers())
+        g["__builtins__"] = _NilBuiltins()
+        g["_gload"] = self.gload
+        g["_gstore"] = self.gstore
+        g["_native"] = self.native_closure
+        g["_call_failed"] = self._call_failed
+        g["_N"] = self.budget.namespace.get("_N") or itertools.repeat(None).__next__
 
     # ------------------------------------------------------------ loading
 
@@ -129,9 +186,10 @@ class VM:
 
         self.program = program
         self.globals.clear()
+        self._hidden.clear()
+        self._install_helpers()
         self.natives.clear()
         self._entries.clear()
-        self._namespace = None
         self.state = "ready"
         self.error = None
         self._global_start = self._run(
@@ -143,18 +201,20 @@ class VM:
 
     def execute(self) -> None:
         """Run the global code (up to `done`)."""
-        program = self._require_program()
+        self._require_program()
         if self.state == "done":
             self.state = "ready"
 
         def run() -> Any:
+            if not self.translate:
+                return interpret(self, self._global_start, None, toplevel=True)
             try:
                 f = _translate.translate(self, self._global_start, 0, 0, toplevel=True)
-            except _translate.NotStructured:
+            except _translate.NotStructured as e:
+                _log.info("global code runs on the interpreter: %s", e)
                 return interpret(self, self._global_start, None, toplevel=True)
             return f()
 
-        del program
         self._run(run)
         if self.state == "ready":
             self.state = "done"
@@ -166,7 +226,7 @@ class VM:
         self._require_program()
         if self.state == "done":
             self.state = "ready"
-        c = self.globals.get(name)
+        c = self.gload(name)
         if c is None:
             raise self._fail(BuzzError(f"type mismatch: cannot find function '{name}()'"))
         if c.__class__ is not Closure:
@@ -175,18 +235,31 @@ class VM:
                     f"type mismatch: function '{name}()': expected closure, got {type_name(c)}"
                 )
             )
-        bargs = [to_buzz(a) for a in args]
-        return to_python(self._run(lambda: c.fn(c, *bargs)))
+        bargs = tuple(to_buzz(a) for a in args)
+        return to_python(self._run(lambda: self.invoke(c, bargs)))
 
     def call_closure(self, c: Any, *args: Any) -> Any:
         """Call a Buzz value with Buzz arguments (for natives); returns a Buzz value."""
+        return self.invoke(c, args)
+
+    def invoke(self, c: Any, args: tuple) -> Any:
+        """Call `c(*args)` with Buzz semantics for non-closures and argument counts."""
+        try:
+            return c.fn(c, *args)
+        except (TypeError, AttributeError) as e:
+            return self._call_failed(e, c, args)
+
+    def _call_failed(self, e: Exception, c: Any, args: tuple) -> Any:
+        """A call raised TypeError or AttributeError: is it the call itself, or the callee?"""
+        tb = e.__traceback__
+        if tb is not None and tb.tb_next is not None:
+            raise e  # raised inside the callee, not by the call itself: not ours
         if c.__class__ is not Closure:
-            raise BuzzError(f"type mismatch: expected closure, got {type_name(c)}")
-        budget = self.budget_cell
-        budget[0] -= 1
-        if budget[0] <= 0:
-            self.tick()
-        return c.fn(c, *args)
+            raise BuzzError(f"type mismatch: expected closure, got {type_name(c)}") from None
+        if isinstance(e, TypeError) and not c.native:
+            # A translation takes exactly its argument count; go through the entry.
+            return self.entry(c.ref, len(c.actrec)).other(c, args)
+        raise e
 
     def register(self, name: str, func: Callable[..., Any]) -> Closure:
         """Expose a Python callable to Buzz as the global `name`.
@@ -205,7 +278,7 @@ class VM:
             return to_buzz(func(*args))
 
         closure = self.new_native(impl, None, name)
-        self.globals[name] = closure
+        self.gstore(name, closure)
         return closure
 
     def new_native(self, impl: Callable[..., Any], arity: int | None, name: str) -> Closure:
@@ -237,10 +310,9 @@ class VM:
 
     def native_closure(self, fid: int) -> Closure:
         """The closure `pushcc fid` makes."""
-        if fid >= len(self.natives) or self.natives[fid] is None:
+        c = self.natives[fid] if 0 <= fid < len(self.natives) else None
+        if c is None:
             raise BuzzError("function id out of range")
-        c = self.natives[fid]
-        assert c is not None
         return Closure(c.ref, True, (None,), c.fn)
 
     def make_closure(self, addr: int, actrec: tuple) -> Closure:
@@ -255,57 +327,38 @@ class VM:
             e = self._entries[key] = Entry(self, addr, n_actrec)
         return e
 
+    def gload(self, name: Any) -> Any:
+        """The global `name` (a Buzz string), nil when unset."""
+        if name.__class__ is not str:
+            raise BuzzError(f"type mismatch: expected string, got {type_name(name)}")
+        if name.startswith("_"):
+            return self._hidden.get(name)
+        return self.globals.get(name)
+
+    def gstore(self, name: Any, value: Any) -> None:
+        """Set the global `name` (a Buzz string)."""
+        if name.__class__ is not str:
+            raise BuzzError(f"type mismatch: expected string, got {type_name(name)}")
+        if name.startswith("_"):
+            self._hidden[name] = value
+        else:
+            self.globals[name] = value
+
     def __getitem__(self, name: str) -> Any:
         """A global as a Python value (tables become dicts)."""
-        return to_python(self.globals.get(name))
+        return to_python(self.gload(name))
 
     def __setitem__(self, name: str, value: Any) -> None:
         """Set a global from a Python value."""
-        self.globals[name] = to_buzz(value)
+        self.gstore(name, to_buzz(value))
 
-    # ------------------------------------------------------------ budget
-
-    def tick(self) -> None:
-        """Called every `_TICK_CHUNK` loop iterations and calls: enforce the budget."""
-        if self._ticks_left is not None:
-            self._ticks_left -= _TICK_CHUNK - self.budget_cell[0]
-            if self._ticks_left <= 0:
-                self.budget_cell[0] = _TICK_CHUNK
-                raise BuzzBudgetExceeded(
-                    f"budget exceeded: more than {self.max_ticks} loop iterations and calls"
-                )
-        if self._deadline is not None and time.monotonic() > self._deadline:
-            self.budget_cell[0] = _TICK_CHUNK
-            raise BuzzBudgetExceeded(f"budget exceeded: ran longer than {self.max_seconds} s")
-        chunk = _TICK_CHUNK
-        if self._ticks_left is not None:
-            chunk = max(1, min(chunk, self._ticks_left))
-        self.budget_cell[0] = chunk
+    def buzz_globals(self) -> dict[str, Any]:
+        """The Buzz-visible globals (without the translator's helpers)."""
+        return {k: v for k, v in self.globals.items() if not k.startswith("_")}
 
     def namespace(self) -> dict[str, Any]:
-        """The names translated code uses (a fresh copy each time: constants get added)."""
-        if self._namespace is None:
-            ns = _translate.base_namespace()
-            ns.update(
-                _G=self.globals,
-                _B=self.budget_cell,
-                _tick=self.tick,
-                _gload=self._gload,
-                _gstore=self._gstore,
-                _native=self.native_closure,
-            )
-            self._namespace = ns
-        return dict(self._namespace)
-
-    def _gload(self, name: Any) -> Any:
-        if name.__class__ is not str:
-            raise BuzzError(f"type mismatch: expected string, got {type_name(name)}")
-        return self.globals[name]
-
-    def _gstore(self, name: Any, value: Any) -> None:
-        if name.__class__ is not str:
-            raise BuzzError(f"type mismatch: expected string, got {type_name(name)}")
-        self.globals[name] = value
+        """The module globals of translated code (shared: it holds the Buzz globals)."""
+        return self.globals
 
     # ------------------------------------------------------------ running
 
@@ -317,10 +370,8 @@ class VM:
         return self.program
 
     def _run(self, body: Callable[[], Any]) -> Any:
-        """Run an entry with a fresh budget; turn every failure into a located BuzzError."""
-        self._ticks_left = self.max_ticks
-        self._deadline = time.monotonic() + self.max_seconds if self.max_seconds else None
-        self.budget_cell[0] = min(_TICK_CHUNK, self.max_ticks or _TICK_CHUNK)
+        """Run an entry within the budget; turn every failure into a located BuzzError."""
+        self.budget.start()
         try:
             return body()
         except Halt:
@@ -328,6 +379,9 @@ class VM:
             return None
         except BuzzError as e:
             raise self._fail(e, e.__traceback__) from None
+        except StopIteration as e:
+            err = self.budget.exceeded() or BuzzError(f"host function error: {e!r}")
+            raise self._fail(err, e.__traceback__) from None
         except RecursionError as e:
             err = BuzzError("stack overflow: function calls nested too deeply")
             raise self._fail(err, e.__traceback__) from None
@@ -336,6 +390,8 @@ class VM:
         except Exception as e:  # a host function failed: report it as a Buzz error
             err = BuzzError(f"host function error: {type(e).__name__}: {e}")
             raise self._fail(err, e.__traceback__) from None
+        finally:
+            self.budget.stop()
 
     def _fail(self, err: BuzzError, tb: Any = None) -> BuzzError:
         if err.offset is None and tb is not None:
@@ -378,7 +434,7 @@ def _arity_range(func: Callable[..., Any]) -> tuple[int, int | None]:
         return 0, None
     lo, hi = 0, 0
     for p in sig.parameters.values():
-        if p.kind in (p.VAR_POSITIONAL,):
+        if p.kind is p.VAR_POSITIONAL:
             return lo, None
         if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD):
             hi += 1
