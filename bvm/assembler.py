@@ -382,7 +382,7 @@ class _Assembler:
             self.out += struct.pack("<I", bits)
             return
         value, has_digits = strtoul(arg)
-        if op in LABEL_ONLY_OPS and not arg[:1].isdigit():
+        if op in LABEL_ONLY_OPS and not arg.isdigit():
             has_digits = False  # reference: a jump argument is always a label name
         if not has_digits:
             self.fixups.append((len(self.out), arg, self.lineno))

@@ -73,12 +73,26 @@ class _Chunk:
 _START = Token(Tok.EOF, "", 0, 1, "(null)", ("<start>", 1, 0), False)
 
 
-class _Compiler:
-    """One parse of the token stream; `forced` are return sites compiled as a bare return."""
+@dataclass(frozen=True, slots=True)
+class _Snapshot:
+    """Everything a greedy `return` value may change, to undo it."""
 
-    def __init__(self, tokens: TokenStream, forced: frozenset[int]) -> None:
+    index: int
+    chunk: _Chunk
+    code_len: int
+    chunks_len: int
+    strings_len: int
+    labels: int
+    tables: list[tuple[dict[str, _Sym], dict[str, _Sym]]]  # (table object, its contents)
+    nesting: int
+    fallbacks_len: int
+
+
+class _Compiler:
+    """One parse of a token stream into .basm text."""
+
+    def __init__(self, tokens: TokenStream) -> None:
         self.tokens = tokens
-        self.forced = forced
         self.index = -1
         self.tok = _START
         self.strings: list[str] = []
@@ -88,10 +102,11 @@ class _Compiler:
         self.chunk = _Chunk(-1, None)
         self.symstack: list[dict[str, _Sym]] = []
         self.nesting = 0
-        # Return sites whose greedy parse is under way / ended on a token that cannot
-        # follow a statement: the places a bare-return fallback may be tried.
-        self.active_returns: list[int] = []
-        self.suspect_returns: list[int] = []
+        # What follows the command being parsed when it is a `for` init/update
+        # (`,` / `)`), else None: it decides the reference's error after a `return`.
+        self.command_follow: Tok | None = None
+        # Bare-return fallbacks taken: (token index the greedy parse failed at, its error).
+        self.fallbacks: list[tuple[int, BuzzCompileError]] = []
 
     # -- tokens, errors, emission -------------------------------------------------
 
@@ -362,6 +377,7 @@ class _Compiler:
         self.fetch()
         self.expect(Tok.PAROPEN)
         self.fetch()
+        self.command_follow = Tok.COMMA
         self.command()
         self.expect(Tok.COMMA)
         self.fetch()
@@ -372,6 +388,7 @@ class _Compiler:
         self.emit(f"\tjumpnz @__label_{l_body}")
         self.emit(f"\tjump @__label_{l_end}")
         self.emit(f"@__label_{l_update}")
+        self.command_follow = Tok.PARCLOSE
         self.command()
         self.expect(Tok.PARCLOSE)
         self.fetch()
@@ -382,8 +399,9 @@ class _Compiler:
         self.emit(f"@__label_{l_end}")
 
     def command(self) -> None:
+        follow, self.command_follow = self.command_follow, None
         if self.tok.kind is Tok.RETURN:
-            self.return_stat()
+            self.return_stat(follow)
             return
         ref = self.idref(lvalue=True)
         if self.tok.kind is Tok.ASSIGN:
@@ -405,27 +423,67 @@ class _Compiler:
                 "a statement must assign (x = ...) or call (f(...))",
             )
 
-    def return_stat(self) -> None:
-        site = self.index
+    def return_stat(self, follow: Tok | None) -> None:
         self.fetch()
         if self.tok.kind is Tok.BLOCKCLOSE:
             self.emit("\tret0")
             return
-        # Deliberate fix: `return` followed by a later line may be a bare return
-        # whose value the reference swallowed; compile_source decides by re-parsing.
+        # Deliberate fix: a value on a later line may be the next statement, which
+        # the reference swallows. Parse greedily like the reference; if that fails,
+        # or ends where the reference is bound to fail, undo it and return bare.
         # (Not before EOF: a top-level `return` at the end stays the reference's error.)
-        fallback_ok = self.tok.newline_before and self.tok.kind is not Tok.EOF
-        if fallback_ok and site in self.forced:
+        if not self.tok.newline_before or self.tok.kind is Tok.EOF:
+            self.condition()
+            self.emit("\tret1")
+            return
+        snap = self.snapshot()
+        try:
+            self.condition()
+            after = self.tok
+            if after.kind not in _STATEMENT_START and after.kind not in _STATEMENT_FOLLOW:
+                # The reference fails right here, with the error it would give next.
+                raise self.error(
+                    f"Syntax error: expected {(follow or Tok.ID).value}, found {after.kind.value}",
+                    _expect_hint(follow or Tok.ID, after),
+                )
+        except BuzzCompileError as exc:
+            reached = self.index
+            self.restore(snap)
+            self.fallbacks.append((reached, exc))
             self.emit("\tret0")
             return
-        if fallback_ok:
-            self.active_returns.append(site)
-        self.condition()
-        if fallback_ok:
-            self.active_returns.pop()
-            if self.tok.kind not in _STATEMENT_START and self.tok.kind not in _STATEMENT_FOLLOW:
-                self.suspect_returns.append(site)
         self.emit("\tret1")
+
+    def snapshot(self) -> _Snapshot:
+        return _Snapshot(
+            self.index,
+            self.chunk,
+            len(self.chunk.code),
+            len(self.chunks),
+            len(self.strings),
+            self.labels,
+            [(table, dict(table)) for table in self.symstack],
+            self.nesting,
+            len(self.fallbacks),
+        )
+
+    def restore(self, snap: _Snapshot) -> None:
+        # In place: callers up the stack hold references to the chunk and the tables.
+        self.index = snap.index
+        self.tok = self.tokens[snap.index]
+        self.chunk = snap.chunk
+        del self.chunk.code[snap.code_len :]
+        del self.chunks[snap.chunks_len :]
+        for text in self.strings[snap.strings_len :]:
+            del self.string_ids[text]
+        del self.strings[snap.strings_len :]
+        self.labels = snap.labels
+        self.symstack[:] = [table for table, _ in snap.tables]
+        for table, contents in snap.tables:
+            table.clear()
+            table.update(contents)
+        self.nesting = snap.nesting
+        del self.fallbacks[snap.fallbacks_len :]
 
     # -- expressions -------------------------------------------------------------
 
@@ -705,29 +763,24 @@ def compile_source(source: bytes, path: str, include_dirs: Sequence[str] = ()) -
     write it with `encoding="utf-8", errors="surrogateescape"`.
 
     Return fallback (deliberate fix): a `return` whose value starts on a later
-    line is parsed greedily like the reference; when that makes the program fail,
-    it is recompiled with that `return` bare (`ret0`). Each retry must get
-    further than the previous attempt, else the previous error is reported.
+    line is parsed greedily like the reference; when that parse fails, or ends on
+    a token after which the reference must fail, it is undone and the `return`
+    compiles bare (`ret0`). If the program then fails no further on than the
+    greedy parse did, the greedy (reference) error is reported.
     """
-    tokens = TokenStream(Lexer(source, path, include_dirs))
-    forced: set[int] = set()
-    best: tuple[int, BuzzCompileError] | None = None
-    while True:
-        compiler = _Compiler(tokens, frozenset(forced))
-        try:
-            return compiler.script()
-        except BuzzCompileError as exc:
-            error = exc
-        except RecursionError:
-            error = compiler.error("program nested too deeply", "split it into smaller functions")
-        reached = compiler.index
-        if best is not None and reached <= best[0]:
-            raise best[1]
-        best = (reached, error)
-        sites = [s for s in compiler.active_returns + compiler.suspect_returns if s not in forced]
-        if not sites:
-            raise error
-        forced.add(max(sites))
+    compiler = _Compiler(TokenStream(Lexer(source, path, include_dirs)))
+    try:
+        return compiler.script()
+    except BuzzCompileError as exc:
+        error = exc
+    except RecursionError:
+        error = compiler.error("program nested too deeply", "split it into smaller functions")
+    # A fallback that got no further than its greedy parse did not help: the
+    # reference's (greedy) error is the one that explains the program.
+    for reached, original in reversed(compiler.fallbacks):
+        if compiler.index <= reached:
+            raise original from None
+    raise error
 
 
 def compile_file(path: str, include_dirs: Sequence[str] = ()) -> str:

@@ -148,8 +148,8 @@ def disassemble(bo: bytes, bdb: bytes | None = None) -> str:
             debug[offset] = entry
     lines = [f"# fieldkit disassembly: {len(bo)} bytes"]
     header, code_start = _strings(bo)
-    lines += header
-    lines.append("")
+    if header:
+        lines += header + [""]
     units = _decode(bo, code_start, {o for o in debug if o > code_start})
     if len(header) - 1 < (struct.unpack_from("<H", bo)[0] if header else 0):
         units = [_Unit(code_start, len(bo) - code_start, None)] if code_start < len(bo) else []
