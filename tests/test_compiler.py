@@ -404,13 +404,24 @@ def test_return_fallback_in_braceless_while_and_several_sites() -> None:
     assert body.count("ret0") == 3 and "ret1" not in body
 
 
-def test_return_fallback_restores_strings_labels_and_chunks() -> None:
-    # The greedy parse interned `g`, made a lambda chunk and took labels; none survive.
-    src = "function f(x) { if (x) return\n g = function() { if (1) {} }\n}"
-    text = basm(src)
-    assert text.startswith("!2\n'f\n'g\n")
-    assert re.findall(r"^@__label_(\d+)$", text, re.M) == ["0", "1", "4"]
-    assert chunks(text)[1][:3] == ["lload 1", "jumpz @__label_2", "ret0"]
+def test_return_fallback_undoes_strings_labels_and_chunks() -> None:
+    # The greedy parse starts a lambda at `function` (label 3, a chunk, pushl) and
+    # fails at `g`; after the undo the named function gets label 3 and no orphan.
+    text = basm("if (x) return\nfunction g() {}\nz = 1")
+    assert text.startswith("!3\n'x\n'g\n'z\n\n\tpushs 1\n\tpushcn @__label_3\n\tgstore\n")
+    assert re.findall(r"^@__label_(\d+)$", text, re.M) == ["0", "3"]
+    assert "pushl" not in text
+    assert chunks(text)[0][:4] == ["pushs 0", "gload", "jumpz @__label_1", "ret0"]
+    assert chunks(text)[3] == ["ret0"]
+
+
+def test_return_fallback_inside_a_block_keeps_its_locals() -> None:
+    # Undo happens in place: the enclosing block still drops its own locals.
+    src = "function f() { var a = 1\n if (a) { var b = 2\n if (b) return\n b = 3 } a = 4 }"
+    assert code(src, chunk=1)[-10:] == [
+        "ret0", "@__label_4", "pushi 3", "lstore 2", "lremove 1", "@__label_2",
+        "pushi 4", "lstore 1", "lremove 1", "ret0",
+    ]  # fmt: skip
 
 
 def test_return_fallback_that_also_fails_reports_the_greedy_error() -> None:

@@ -85,6 +85,86 @@ def test_mutated_programs(source: bytes) -> None:
     check(source)
 
 
+# -- grammar-valid programs: must compile, assemble and round-trip --------------------
+
+NAMES = st.sampled_from(["x", "y", "t", "f", "log", "self"])
+ATOMS = st.sampled_from(["0", "1", "2.5", "007", "1.2.3", "nil", '"s"', "'q'", '"a\\tb"'])
+BINOPS = st.sampled_from(["+", "-", "*", "/", "%", "^", "<<", ">>", "&", "|"])
+CMPOPS = st.sampled_from(["==", "!=", "<", "<=", ">", ">="])
+
+
+def _compose(parts: tuple[str, ...]) -> str:
+    return "".join(parts)
+
+
+def _expressions(children: st.SearchStrategy[str]) -> st.SearchStrategy[str]:
+    cond = st.one_of(
+        children,
+        st.tuples(children, st.just(" "), CMPOPS, st.just(" "), children).map(_compose),
+        st.tuples(st.just("not "), children).map(_compose),
+        st.tuples(children, st.sampled_from([" and ", " or "]), children).map(_compose),
+    )
+    args = st.lists(cond, max_size=3).map(", ".join)
+    return st.one_of(
+        st.tuples(children, st.just(" "), BINOPS, st.just(" "), children).map(_compose),
+        st.tuples(st.sampled_from(["-", "+", "!"]), children).map(_compose),
+        st.tuples(st.just("("), cond, st.just(")")).map(_compose),
+        st.tuples(NAMES, st.just("("), args, st.just(")")).map(_compose),
+        st.tuples(NAMES, st.just("."), NAMES, st.just("("), args, st.just(")")).map(_compose),
+        st.tuples(NAMES, st.just("["), children, st.just("]")).map(_compose),
+        st.tuples(NAMES, st.just("("), args, st.just(")("), args, st.just(")")).map(_compose),
+        st.tuples(st.just("({.a = "), children, st.just(", .7 = "), children, st.just("})")).map(
+            _compose
+        ),
+        st.tuples(st.just("function(a, b) { return "), cond, st.just(" }")).map(_compose),
+    )
+
+
+EXPRESSIONS = st.recursive(st.one_of(ATOMS, NAMES), _expressions, max_leaves=5)
+
+
+def _statements(children: st.SearchStrategy[str]) -> st.SearchStrategy[str]:
+    block = st.lists(children, max_size=3).map(lambda s: "{ " + "\n".join(s) + " }")
+    cond = st.tuples(EXPRESSIONS, st.sampled_from([" == ", " and ", " < "]), EXPRESSIONS).map(
+        _compose
+    )
+    return st.one_of(
+        st.tuples(st.just("if ("), cond, st.just(") "), block).map(_compose),
+        st.tuples(st.just("if ("), cond, st.just(") "), block, st.just(" else "), children).map(
+            _compose
+        ),
+        st.tuples(st.just("while ("), cond, st.just(") "), block).map(_compose),
+        st.tuples(st.just("for (x = 0, "), cond, st.just(", x = x + 1) "), block).map(_compose),
+    )
+
+
+SIMPLE_STATEMENTS = st.one_of(
+    st.tuples(NAMES, st.just(" = "), EXPRESSIONS).map(_compose),
+    st.tuples(NAMES, st.just(".k = "), EXPRESSIONS).map(_compose),
+    st.tuples(NAMES, st.just("["), EXPRESSIONS, st.just("] = "), EXPRESSIONS).map(_compose),
+    st.tuples(NAMES, st.just("("), EXPRESSIONS, st.just(")")).map(_compose),
+)
+STATEMENTS = st.recursive(SIMPLE_STATEMENTS, _statements, max_leaves=4)
+FUNCTIONS = st.tuples(
+    st.just("function g(a, b) {\n"),
+    st.lists(STATEMENTS, max_size=3).map("\n".join),
+    st.just("\nreturn "),
+    EXPRESSIONS,
+    st.just("\n}"),
+).map(_compose)
+PROGRAMS = st.lists(st.one_of(STATEMENTS, FUNCTIONS, st.just("var v = 1")), max_size=5).map(
+    "\n".join
+)
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(PROGRAMS)
+def test_grammar_valid_programs_compile_and_round_trip(program: str) -> None:
+    text = compile_source(program.encode(), P)
+    bo, bdb = assemble(text, "<fuzz>")
+    assert assemble(disassemble(bo, bdb)) == (bo, bdb)
+
+
 @pytest.mark.parametrize("source", VALID)
 def test_corpus_compiles(source: bytes) -> None:
     text = compile_source(source, P)
