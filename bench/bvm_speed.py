@@ -98,16 +98,28 @@ function run() {
 """
 
 
+def _tmap(t: dict, f: Callable) -> dict:
+    return {k: r for k, v in t.items() if (r := f(k, v)) is not None}
+
+
+def _tfilter(t: dict, f: Callable) -> dict:
+    return {k: v for k, v in t.items() if f(k, v)}
+
+
+def _treduce(t: dict, f: Callable, acc: object) -> object:
+    for k, v in t.items():
+        acc = f(k, v, acc)
+    return acc
+
+
 def py_map_reduce() -> int:
+    # The twin keeps the program's shape: library functions calling a closure per entry.
     t = {i: i for i in range(2000)}
     total = 0
     for _ in range(5):
-        doubled = {key: value * 2 for key, value in t.items()}
-        odd = {key: value for key, value in doubled.items() if value % 4 == 2}
-        acc = 0
-        for _key, value in odd.items():
-            acc = acc + value
-        total = total + acc
+        doubled = _tmap(t, lambda key, value: value * 2)
+        odd = _tfilter(doubled, lambda key, value: value % 4 == 2)
+        total = total + _treduce(odd, lambda key, value, acc: acc + value, 0)
     return total
 
 

@@ -38,7 +38,7 @@ from bvm.errors import BuzzError
 from bvm.interp import Halt
 from bvm.opcodes import Op
 from bvm.program import Instruction
-from bvm.values import F32_CELL, Closure, Table, i32, type_name
+from bvm.values import F32_CELL, Closure, Table, f32, i32, type_name
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -81,12 +81,15 @@ def python_name(name: str) -> str | None:
 class _Expr:
     """A symbolic stack entry: side-effect-free Python code, its static type and constant."""
 
-    __slots__ = ("code", "ty", "const")
+    __slots__ = ("code", "ty", "const", "origin")
 
-    def __init__(self, code: str, ty: str = ANY, const: Any = None) -> None:
+    def __init__(self, code: str, ty: str = ANY, const: Any = None, origin: Any = None) -> None:
         self.code = code
         self.ty = ty
         self.const = const  # the value of a literal; None when not a literal (or nil)
+        # What a loaded value currently is at translation time (a global, or a member of
+        # a global table): lets a call to a host function skip the closure protocol.
+        self.origin = origin
 
     @property
     def is_literal(self) -> bool:
@@ -160,6 +163,7 @@ class _Codegen:
         self.dead = False
         self.ntemps = 0
         self.consts: dict[str, Any] = {}
+        self.result_type = ANY
         self.used_locals: set[int] = set()
         self.global_names: set[str] = set()
 
@@ -543,6 +547,7 @@ class _Codegen:
     def arith(self, ins: Instruction) -> None:
         """add, sub, mul: int32 wrap for ints, binary32 rounding for floats."""
         b, a = self.pop(), self.pop()
+        a, b = self.float_literal(a, b)
         sym, slow = _ARITH[ins.op]
         t = self.temp()
         av, bv = self.val(a), self.val(b)
@@ -562,10 +567,27 @@ class _Codegen:
             self.emit(f"    {self.wrap_check(t, ins.op, b)}", at)
             self.emit(f"else: {t} = {slow}({av}, {bv})", at)
             self.push(t, ANY)
+        elif {ta, tb} == {FLOAT, ANY}:
+            unknown = a if ta == ANY else b
+            self.emit(f"if {unknown.code}.__class__ is _float:", at)
+            self.emit(f"    _F[0] = {av} {sym} {bv}", at)
+            self.emit(f"    {t} = _F[0]", at)
+            self.emit(f"else: {t} = {slow}({av}, {bv})", at)
+            self.push(t, FLOAT)
         else:
             self.emit(f"{t} = {slow}({av}, {bv})", at)
             numeric = ta in (INT, FLOAT) and tb in (INT, FLOAT)
             self.push(t, FLOAT if numeric or FLOAT in (ta, tb) else ANY)
+
+    def float_literal(self, a: _Expr, b: _Expr) -> tuple[_Expr, _Expr]:
+        """With a float operand, an int literal is converted to binary32 now, as Buzz would."""
+        if a.ty == FLOAT and b.ty == INT and b.const is not None:
+            self.literal(f32(float(b.const)))
+            b = self.stack.pop()
+        elif b.ty == FLOAT and a.ty == INT and a.const is not None:
+            self.literal(f32(float(a.const)))
+            a = self.stack.pop()
+        return a, b
 
     @staticmethod
     def wrap_check(t: str, op: Op, b: _Expr) -> str:
@@ -579,11 +601,28 @@ class _Codegen:
 
     def helper_binary(self, ins: Instruction) -> None:
         b, a = self.pop(), self.pop()
+        if ins.op is Op.DIV:
+            a, b = self.float_literal(a, b)
         t = self.temp()
         ta, tb = self.vtype(a), self.vtype(b)
         av, bv = self.val(a), self.val(b)
         at = ins.addr
         op = ins.op
+        positive = tb == INT and b.const is not None and b.const > 0
+        if ta == INT and positive and op in (Op.MOD, Op.DIV):
+            # By a positive divisor, Buzz's remainder rule is Python's %, and C's truncating
+            # division is floor division of the magnitude.
+            if op is Op.MOD:
+                self.emit(f"{t} = {av} % {bv}", at)
+            else:
+                self.emit(f"{t} = {av} // {bv} if {av} >= 0 else -(-{av} // {bv})", at)
+            self.push(t, INT)
+            return
+        if ta == FLOAT and tb == FLOAT and op is Op.DIV and b.const not in (None, 0.0):
+            self.emit(f"_F[0] = {av} / {bv}", at)
+            self.emit(f"{t} = _F[0]", at)
+            self.push(t, FLOAT)
+            return
         if ta == INT and tb == INT and op in (Op.BAND, Op.BOR, Op.RSHIFT):
             expr = {Op.BAND: f"{av} & {bv}", Op.BOR: f"{av} | {bv}"}.get(op)
             self.emit(f"{t} = {expr or f'{av} >> ({bv} & 31)'}", at)
@@ -617,20 +656,25 @@ class _Codegen:
     def compare(self, ins: Instruction) -> None:
         b, a = self.pop(), self.pop()
         sym, slow = _COMPARE[ins.op]
-        t = self.temp()
         av, bv = self.val(a), self.val(b)
         ta, tb = self.vtype(a), self.vtype(b)
         equality = ins.op in (Op.EQ, Op.NEQ)
         same = ta == tb and ta != ANY
         if same and (equality or ta in (INT, FLOAT, STR)):
             # Python's own comparison is Buzz's for these (IEEE for floats, bytes for strings).
-            self.emit(f"{t} = {av} {sym} {bv}", ins.addr)
-        elif equality and ta != ANY and tb != ANY and NIL in (ta, tb):
-            self.emit(f"{t} = {'False' if ins.op is Op.EQ else 'True'}", ins.addr)
-        elif equality and ANY in (ta, tb):
+            # It cannot fail, so it stays an expression: `if a < b:` with no temporary.
+            self.push(f"({av} {sym} {bv})", BOOL)
+            return
+        if equality and ta != ANY and tb != ANY and NIL in (ta, tb):
+            self.push("False" if ins.op is Op.EQ else "True", BOOL)
+            return
+        t = self.temp()
+        if equality and ANY in (ta, tb):
+            known = tb if ta == ANY else ta
+            unknown, other = (av, bv) if ta == ANY else (bv, av)
+            cls = _GUARD_CLASS.get(known, f"{other}.__class__")
             self.emit(
-                f"{t} = ({av} {sym} {bv}) if {av}.__class__ is {bv}.__class__ "
-                f"else {slow}({av}, {bv})",
+                f"{t} = ({av} {sym} {bv}) if {unknown}.__class__ is {cls} else {slow}({av}, {bv})",
                 ins.addr,
             )
         elif ta in (INT, ANY) and tb in (INT, ANY) and not equality:
@@ -648,9 +692,10 @@ class _Codegen:
         pyname = python_name(name.const) if name.ty == STR else None
         if pyname is not None:
             self.emit(f"{t} = {pyname}", ins.addr)
+            self.stack.append(_Expr(t, origin=self.vm.globals.get(pyname)))
         else:
             self.emit(f"{t} = _gload({self.val(name)})", ins.addr)
-        self.push(t)
+            self.push(t)
 
     def gstore(self, ins: Instruction) -> None:
         v, name = self.pop(), self.pop()
@@ -677,7 +722,10 @@ class _Codegen:
             self.emit(f"{t} = {tc}[{kv}] if {' and '.join(tests)} else _tget({tc}, {kv})", at)
         else:
             self.emit(f"{t} = {tc}[{kv}]", at)
-        self.push(t)
+        origin = None
+        if tab.origin.__class__ is Table and k.ty in (STR, INT):
+            origin = tab.origin.get(k.const)
+        self.stack.append(_Expr(t, origin=origin))
 
     def tput(self, ins: Instruction) -> None:
         v, k, tab = self.pop(), self.pop(), self.pop()
@@ -708,6 +756,10 @@ class _Codegen:
         at = ins.addr
         if c.ty not in (ANY, CLOSURE):
             self.emit(f"{t} = _not_callable({self.val(c)})", at)
+        elif self.direct_native(c, args, t, at):
+            # Both paths call the same closure, so the result type is the native's.
+            self.push(t, self.result_type)
+            return
         else:
             cc = c.code
             # Zero-cost try: a non-closure has no `.fn`, a wrong argument count is a
@@ -720,6 +772,36 @@ class _Codegen:
                 at,
             )
         self.push(t)
+
+    def direct_native(self, c: _Expr, args: list[_Expr], t: str, at: int) -> bool:
+        """Call a host function's implementation directly when the callee is, at run time,
+        the very closure it is now (an identity guard); False when that does not apply."""
+        closure = c.origin
+        if closure.__class__ is not Closure or not closure.native:
+            return False
+        impl, arity = self.vm.native_impl(closure.ref)
+        if impl is None or (arity is not None and arity != len(args)):
+            return False
+        guard = f"_nc{next(_serial)}"
+        self.consts[guard] = closure
+        call = f"_ni{closure.ref}"
+        self.consts[call] = impl
+        owner = "None"
+        if closure.actrec[0] is not None:
+            owner = f"_ns{next(_serial)}"
+            self.consts[owner] = closure.actrec[0]
+        argv = "".join(f", {self.val(a)}" for a in args)
+        cc = c.code
+        self.emit(f"if {cc} is {guard}: {t} = {call}({owner}{argv})", at)
+        self.result_type = _native_result_type(impl)
+        self.emit("else:", at)
+        self.emit(f"    try: {t} = {cc}.fn({cc}{argv})", at)
+        self.emit(
+            f"    except (_TypeError, _AttributeError) as _e: "
+            f"{t} = _call_failed(_e, {cc}, ({''.join(f'{self.val(a)}, ' for a in args)}))",
+            at,
+        )
+        return True
 
     def lstore(self, ins: Instruction) -> None:
         k = ins.arg
@@ -767,6 +849,23 @@ _COMPARE = {
     Op.GT: (">", "_gt"),
     Op.GTE: (">=", "_gte"),
 }
+
+
+_ANNOTATED = {"int": INT, "float": FLOAT, "str": STR, "Table": TABLE}
+
+
+def _native_result_type(impl: Callable[..., Any]) -> str:
+    """The result type a library native declares (`-> int` etc.); ANY for anything else.
+
+    Only bvm's own library is trusted this way (its annotations are checked by tests);
+    host functions registered by users give ANY.
+    """
+    if not getattr(impl, "__module__", "").startswith("bvm.stdlib"):
+        return ANY
+    annotation = getattr(impl, "__annotations__", {}).get("return")
+    if isinstance(annotation, type):
+        annotation = annotation.__name__
+    return _ANNOTATED.get(annotation, ANY) if isinstance(annotation, str) else ANY
 
 
 def param_types(args: tuple) -> tuple[str, ...]:

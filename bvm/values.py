@@ -67,7 +67,8 @@ class Closure:
     """A Buzz closure: bytecode (`native=False`, `ref` = address) or host (`ref` = function id).
 
     `actrec` is the captured activation record, a tuple whose element 0 is `self`.
-    `fn(actrec, *args)` runs it; it is resolved once, when the closure is made.
+    `fn(closure, *args)` runs it; it is resolved when the closure is made (and patched
+    once, on the first call, to the translation for that argument count).
     """
 
     __slots__ = ("ref", "native", "actrec", "fn")

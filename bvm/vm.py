@@ -146,6 +146,8 @@ class VM:
         self.state = "no code"
         self.error: BuzzError | None = None
         self.natives: list[Closure | None] = []
+        self.native_arity: list[int | None] = []
+        self._native_impls: list[Callable[..., Any] | None] = []
         self._entries: dict[tuple[int, int], Entry] = {}
         self._global_start = 0
         self._install_helpers()
@@ -175,7 +177,7 @@ class VM:
         g["_gload"] = self.gload
         g["_gstore"] = self.gstore
         g["_native"] = self.native_closure
-        g["_call_failed"] = self._call_failed
+        g["_call_failed"] = self.call_failed
         g["_N"] = self.budget.namespace.get("_N") or itertools.repeat(None).__next__
 
     # ------------------------------------------------------------ loading
@@ -189,6 +191,8 @@ class VM:
         self._hidden.clear()
         self._install_helpers()
         self.natives.clear()
+        self.native_arity.clear()
+        self._native_impls.clear()
         self._entries.clear()
         self.state = "ready"
         self.error = None
@@ -247,18 +251,30 @@ class VM:
         try:
             return c.fn(c, *args)
         except (TypeError, AttributeError) as e:
-            return self._call_failed(e, c, args)
+            return self.call_failed(e, c, args)
 
-    def _call_failed(self, e: Exception, c: Any, args: tuple) -> Any:
-        """A call raised TypeError or AttributeError: is it the call itself, or the callee?"""
+    def call_failed(self, e: Exception, c: Any, args: tuple) -> Any:
+        """`c.fn(c, *args)` raised TypeError or AttributeError: was it the call itself?
+
+        Translated functions and fixed-arity natives take exactly their argument count,
+        and a non-closure has no `.fn`; both fail at the call, before any callee frame.
+        Anything raised inside the callee is re-raised untouched. Natives that call a
+        closure in a loop use this with a plain `try` around `c.fn(c, ...)`.
+        """
         tb = e.__traceback__
         if tb is not None and tb.tb_next is not None:
             raise e  # raised inside the callee, not by the call itself: not ours
         if c.__class__ is not Closure:
             raise BuzzError(f"type mismatch: expected closure, got {type_name(c)}") from None
-        if isinstance(e, TypeError) and not c.native:
-            # A translation takes exactly its argument count; go through the entry.
-            return self.entry(c.ref, len(c.actrec)).other(c, args)
+        if isinstance(e, TypeError):
+            if not c.native:
+                # A translation takes exactly its argument count; go through the entry.
+                return self.entry(c.ref, len(c.actrec)).other(c, args)
+            arity = self.native_arity[c.ref] if c.ref < len(self.native_arity) else None
+            if arity is not None and arity != len(args):
+                raise BuzzError(
+                    f"wrong number of local variables: expected {arity} parameters, got {len(args)}"
+                ) from None
         raise e
 
     def register(self, name: str, func: Callable[..., Any]) -> Closure:
@@ -282,7 +298,11 @@ class VM:
         return closure
 
     def new_native(self, impl: Callable[..., Any], arity: int | None, name: str) -> Closure:
-        """A host closure with the next C-function id; `impl(self_value, *args)` runs it."""
+        """A host closure with the next C-function id; `impl(self_value, *args)` runs it.
+
+        With an `arity`, the closure's function takes exactly that many arguments, so the
+        count is checked by CPython's own call (see `call_failed`) at no cost.
+        """
         fid = len(self.natives)
         if arity is None:
 
@@ -290,23 +310,28 @@ class VM:
                 return impl(c.actrec[0], *args)
 
         else:
-
-            def fn(c: Closure, *args: Any) -> Any:
-                if len(args) != arity:
-                    raise BuzzError(
-                        f"wrong number of local variables: expected {arity} parameters, "
-                        f"got {len(args)}"
-                    )
-                return impl(c.actrec[0], *args)
-
+            params = "".join(f", a{k}" for k in range(arity))
+            namespace = {"impl": impl}
+            exec(f"def fn(c{params}): return impl(c.actrec[0]{params})", namespace)
+            fn = namespace["fn"]
         fn.__name__ = fn.__qualname__ = f"native_{name}"
         closure = Closure(fid, True, (None,), fn)
         self.natives.append(closure)
+        self.native_arity.append(arity)
+        self._native_impls.append(impl)
         return closure
+
+    def native_impl(self, fid: int) -> tuple[Callable[..., Any] | None, int | None]:
+        """The implementation and fixed arity (None: any) of host function `fid`."""
+        if 0 <= fid < len(self._native_impls):
+            return self._native_impls[fid], self.native_arity[fid]
+        return None, None
 
     def reserve_native_ids(self, count: int) -> None:
         """Skip `count` C-function ids, for library parts registered elsewhere."""
         self.natives.extend([None] * count)
+        self.native_arity.extend([None] * count)
+        self._native_impls.extend([None] * count)
 
     def native_closure(self, fid: int) -> Closure:
         """The closure `pushcc fid` makes."""

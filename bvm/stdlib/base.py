@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import Any
 
 from bvm.errors import BuzzError
-from bvm.values import Closure, Table, Userdata, f2i, f32, is_true, type_name
+from bvm.values import Closure, Table, Userdata, f2i, f32, type_name
 
 _Vm = Any  # the VM: new_native, call_closure, globals (see bvm/stdlib/__init__.py)
 
@@ -143,7 +143,9 @@ def b_isuserdata(_self: Any, x: Any) -> int:
 
 def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
     """foreach, map, reduce and filter bound to `vm` (they call back into Buzz code)."""
-    call = vm.call_closure
+    # These run a Buzz closure per entry, so they call `f.fn` directly (one Python call per
+    # entry) and leave wrong argument counts and the like to `vm.call_failed`.
+    failed = vm.call_failed
 
     def b_foreach(_self: Any, t: Any, f: Any) -> None:
         """foreach(t, f): f(key, value) for every entry, in table order; returns nil."""
@@ -152,7 +154,10 @@ def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
         if f.__class__ is not Closure:
             raise expected("closure", f)
         for k, v in list(t.items()):
-            call(f, k, v)
+            try:
+                f.fn(f, k, v)
+            except (TypeError, AttributeError) as e:
+                failed(e, f, (k, v))
         return None
 
     def b_map(_self: Any, t: Any, f: Any) -> Table:
@@ -163,7 +168,10 @@ def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
             raise expected("closure", f)
         out = Table()
         for k, v in list(t.items()):
-            r = call(f, k, v)
+            try:
+                r = f.fn(f, k, v)
+            except (TypeError, AttributeError) as e:
+                r = failed(e, f, (k, v))
             if r is not None:
                 out[k] = r
         return out
@@ -175,7 +183,10 @@ def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
         if f.__class__ is not Closure:
             raise expected("closure", f)
         for k, v in list(t.items()):
-            acc = call(f, k, v, acc)
+            try:
+                acc = f.fn(f, k, v, acc)
+            except (TypeError, AttributeError) as e:
+                acc = failed(e, f, (k, v, acc))
         return acc
 
     def b_filter(_self: Any, t: Any, f: Any) -> Table:
@@ -186,7 +197,11 @@ def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
             raise expected("closure", f)
         out = Table()
         for k, v in list(t.items()):
-            if is_true(call(f, k, v)):
+            try:
+                r = f.fn(f, k, v)
+            except (TypeError, AttributeError) as e:
+                r = failed(e, f, (k, v))
+            if r is not None and (r.__class__ is not int or r != 0):
                 out[k] = v
         return out
 
