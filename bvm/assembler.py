@@ -414,7 +414,14 @@ def assemble(basm: str | bytes, path: str = "<asm>") -> tuple[bytes, bytes]:
     A `str` is encoded back to bytes as UTF-8 with surrogate escapes (the form
     `bvm.compiler.compile_source` returns). Raises `BuzzAsmError` on bad input.
     """
-    data = basm.encode("utf-8", "surrogateescape") if isinstance(basm, str) else bytes(basm)
+    if isinstance(basm, str):
+        try:
+            data = basm.encode("utf-8", "surrogateescape")
+        except UnicodeEncodeError as exc:
+            line = basm.count("\n", 0, exc.start) + 1
+            raise BuzzAsmError(path, line, "text holds a character with no byte form") from None
+    else:
+        data = bytes(basm)
     asm = _Assembler(path)
     lines = data.split(b"\n")
     last_has_newline = lines[-1] == b""

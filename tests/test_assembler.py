@@ -214,6 +214,33 @@ def test_superset_forms() -> None:
     assert parse_bdb(bdb) == [(14, DebugEntry(1, 2, b"odd,|\x01name"))]
 
 
+def test_unencodable_text_is_an_asm_error() -> None:
+    with pytest.raises(BuzzAsmError) as info:
+        assemble("!1\n'\ud800\n")
+    assert info.value.line == 2
+
+
+BASM_PIECES = st.sampled_from(
+    ["!", "'", '"', "@", "|", ",", " ", "\t", "\n", "#", "\\", "x", "0", "-", "1.5", "nan",
+     "@a", "pushi", "pushf", "jump", "jumpz", "pushcn", "nop", "done", ".bytes", "ff", "bits:",
+     "\xff", "\ud800", "\r"]
+)  # fmt: skip
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(BASM_PIECES, max_size=30).map("".join))
+def test_malformed_basm_only_raises_asm_errors(text: str) -> None:
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            bo, bdb = assemble(text)
+        except BuzzAsmError:
+            return
+    assert parse_bdb(bdb) is not None and isinstance(bo, bytes)
+
+
 def test_str_input_is_utf8_with_surrogate_escapes() -> None:
     text = b"!1\n'\xff\xc3\xa9\n".decode("utf-8", "surrogateescape")
     assert bo_of(text) == b"\x01\x00\xff\xc3\xa9\x00"
