@@ -361,9 +361,9 @@ class _Assembler:
         if name == b".bytes":
             self.raw_bytes(arg_text)
             return
-        op = NAME_TO_OP.get(name.decode("utf-8", "surrogateescape"))
+        op = NAME_TO_OP.get(name.decode("latin-1"))
         if op is None:
-            raise self.error(f'unknown instruction "{name.decode("utf-8", "replace")}"')
+            raise self.error(f'unknown instruction "{name.decode("latin-1")}"')
         self.out.append(op)
         if not op.has_arg:
             if arg:
@@ -393,13 +393,13 @@ class _Assembler:
     def raw_bytes(self, text: bytes) -> None:
         for item in text.split():
             if not re.fullmatch(rb"[0-9a-fA-F]{1,2}", item):
-                raise self.error(f'bad byte "{item.decode("utf-8", "replace")}" in .bytes')
+                raise self.error(f'bad byte "{item.decode("latin-1")}" in .bytes')
             self.out.append(int(item, 16))
 
     def finish(self) -> tuple[bytes, bytes]:
         for slot, label, lineno in self.fixups:
             where = self.labels.get(label)
-            shown = label.decode("utf-8", "replace")
+            shown = label.decode("latin-1")
             if where is None:
                 raise self.error(f'unknown label "{shown}"', lineno)
             if where >= len(self.out):
@@ -411,15 +411,17 @@ class _Assembler:
 def assemble(basm: str | bytes, path: str = "<asm>") -> tuple[bytes, bytes]:
     """Assemble .basm text into (.bo, .bdb) bytes exactly as the reference `bzzasm`.
 
-    A `str` is encoded back to bytes as UTF-8 with surrogate escapes (the form
-    `bvm.compiler.compile_source` returns). Raises `BuzzAsmError` on bad input.
+    A `str` holds one character per byte (latin-1), the form
+    `bvm.compiler.compile_source` returns. Raises `BuzzAsmError` on bad input.
     """
     if isinstance(basm, str):
         try:
-            data = basm.encode("utf-8", "surrogateescape")
+            data = basm.encode("latin-1")
         except UnicodeEncodeError as exc:
             line = basm.count("\n", 0, exc.start) + 1
-            raise BuzzAsmError(path, line, "text holds a character with no byte form") from None
+            raise BuzzAsmError(
+                path, line, "character beyond U+00FF (text is one char a byte)"
+            ) from None
     else:
         data = bytes(basm)
     asm = _Assembler(path)

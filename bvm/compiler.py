@@ -759,8 +759,8 @@ def _expect_hint(kind: Tok, found: Token) -> str | None:
 def compile_source(source: bytes, path: str, include_dirs: Sequence[str] = ()) -> str:
     """Compile Buzz source to .basm text exactly as the reference `bzzparse` does.
 
-    The text keeps string bytes as UTF-8 with undecodable bytes surrogate-escaped;
-    write it with `encoding="utf-8", errors="surrogateescape"`.
+    The text holds one character per byte (latin-1), like every Buzz string in
+    this project: write it with `encoding="latin-1"` to get the reference bytes.
 
     Return fallback (deliberate fix): a `return` whose value starts on a later
     line is parsed greedily like the reference; when that parse fails, or ends on
@@ -792,7 +792,7 @@ def compile_file(path: str, include_dirs: Sequence[str] = ()) -> str:
 def compile_to_asm_file(src_path: str, out_path: str, include_dirs: Sequence[str] = ()) -> None:
     """Compile `src_path` and write the .basm to `out_path` byte-exactly."""
     text = compile_file(src_path, include_dirs)
-    with open(out_path, "w", encoding="utf-8", errors="surrogateescape", newline="") as f:
+    with open(out_path, "w", encoding="latin-1", newline="") as f:
         f.write(text)
 
 

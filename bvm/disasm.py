@@ -2,11 +2,11 @@
 
 The output is reference .basm whenever the input allows (so a compiled program
 disassembles to text the reference `bzzasm` also accepts), with labels
-`@L<offset>` at jump/closure targets and `|line,col,file` from the .bdb.
-Hostile input uses the assembler's documented superset: `.bytes` for bytes that
-do not decode, `"escaped"` strings, `pushf bits:0x...` for NaNs, numeric jump
-targets, and escaped debug file names. `assemble(disassemble(bo))[0] == bo` for
-every byte string `bo`.
+`@L<offset>` at jump/closure targets and `|line,col,file` from the .bdb. The
+text is pure ASCII. Hostile input uses the assembler's documented superset:
+`.bytes` for bytes that do not decode, `"escaped"` strings, `pushf bits:0x...`
+for NaNs, numeric jump targets, and escaped debug file names.
+`assemble(disassemble(bo))[0] == bo` for every byte string `bo`.
 """
 
 from __future__ import annotations
@@ -30,43 +30,35 @@ class _Unit:
 
 
 def _escape(raw: bytes) -> str:
-    """`"..."` with escapes for anything that is not printable text."""
+    """`"..."` with escapes for every byte that is not printable ASCII."""
     out = ['"']
-    for ch in raw.decode("utf-8", "surrogateescape"):
-        code = ord(ch)
-        if ch == "\\":
-            out.append("\\\\")
-        elif ch == '"':
-            out.append('\\"')
-        elif ch in "\n\r\t":
-            out.append({"\n": "\\n", "\r": "\\r", "\t": "\\t"}[ch])
-        elif 0xDC80 <= code <= 0xDCFF:
-            out.append(f"\\x{code - 0xDC00:02x}")
-        elif not ch.isprintable():
-            out += [f"\\x{b:02x}" for b in ch.encode("utf-8")]
+    for b in raw:
+        if b in _NAMED_ESCAPES:
+            out.append(_NAMED_ESCAPES[b])
+        elif 0x20 <= b < 0x7F:
+            out.append(chr(b))
         else:
-            out.append(ch)
+            out.append(f"\\x{b:02x}")
     out.append('"')
     return "".join(out)
 
 
+_NAMED_ESCAPES = {0x5C: "\\\\", 0x22: '\\"', 0x0A: "\\n", 0x0D: "\\r", 0x09: "\\t"}
+
+
 def _plain(raw: bytes) -> bool:
-    """True when bytes can be written verbatim in a reference line."""
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        return False
-    return text.isprintable() and text == text.strip()
+    """True when bytes can be written verbatim: printable ASCII, no edge spaces."""
+    return all(0x20 <= b < 0x7F for b in raw) and raw == raw.strip()
 
 
 def _string_line(raw: bytes) -> str:
-    return f"'{raw.decode('utf-8')}" if _plain(raw) or raw == b"" else _escape(raw)
+    return f"'{raw.decode('ascii')}" if _plain(raw) else _escape(raw)
 
 
 def _debug_suffix(entry: DebugEntry) -> str:
     name = entry.file
     plain = _plain(name) and b"," not in name and b"|" not in name and not name.startswith(b'"')
-    shown = name.decode("utf-8") if plain and name else _escape(name)
+    shown = name.decode("ascii") if plain and name else _escape(name)
     return f"\t|{entry.line},{entry.col},{shown}"
 
 

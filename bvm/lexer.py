@@ -129,8 +129,8 @@ class _Source:
 
 
 def decode(raw: bytes) -> str:
-    """Bytes -> str the way .basm text is kept in Python (UTF-8, undecodable bytes escaped)."""
-    return raw.decode("utf-8", "surrogateescape")
+    """Bytes -> str the way the project keeps Buzz bytes in text: latin-1, one char a byte."""
+    return raw.decode("latin-1")
 
 
 def _quote_char(byte: int) -> str:
@@ -144,7 +144,7 @@ class Lexer:
     """Produces the tokens of a main file and of the files it includes, on demand."""
 
     def __init__(self, source: bytes, path: str, include_dirs: Sequence[str] = ()) -> None:
-        main = _Source(source + b"\n", path, os.path.realpath(path))
+        main = _Source(source + b"\n", path, _debug_name(path))
         self._stack: list[_Source] = [main]
         self._seen: set[str] = {main.realpath}  # include-once, by realpath
         self._include_dirs = list(include_dirs)
@@ -299,7 +299,7 @@ class Lexer:
                     "the file name must be quoted on one line",
                 )
             end += 1
-        name = decode(data[p + 1 : end])
+        name = os.fsdecode(data[p + 1 : end])
         src.col += end + 1 - src.pos
         src.pos = end + 1
         found = self._find(name, src, col)
@@ -312,7 +312,7 @@ class Lexer:
                 f"searched the working directory, then: {searched}",
             )
         opened, raw = found
-        real = os.path.realpath(opened)
+        real = _debug_name(opened)
         if real in self._seen:  # include-once: later includes of a file are no-ops
             return
         self._seen.add(real)
@@ -341,6 +341,11 @@ class Lexer:
 
 
 _ID_BYTES = frozenset(bytes([b]) for b in _IDCHARS)
+
+
+def _debug_name(path: str) -> str:
+    """The realpath as it goes into .basm text: its file-system bytes, one char a byte."""
+    return decode(os.fsencode(os.path.realpath(path)))
 
 
 class TokenStream:

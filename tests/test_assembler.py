@@ -241,8 +241,8 @@ def test_malformed_basm_only_raises_asm_errors(text: str) -> None:
     assert parse_bdb(bdb) is not None and isinstance(bo, bytes)
 
 
-def test_str_input_is_utf8_with_surrogate_escapes() -> None:
-    text = b"!1\n'\xff\xc3\xa9\n".decode("utf-8", "surrogateescape")
+def test_str_input_is_one_char_per_byte() -> None:
+    text = "!1\n'\xff\xc3\xa9\n"
     assert bo_of(text) == b"\x01\x00\xff\xc3\xa9\x00"
     assert assemble(b"!1\n'\xff\n")[0] == b"\x01\x00\xff\x00"
 

@@ -332,7 +332,7 @@ def test_string_id_order_and_sharing() -> None:
 
 def test_string_literal_bytes_reach_the_basm() -> None:
     text = basm(b'x = "\xff\xc3\xa9 \\t|,"')
-    raw = text.encode("utf-8", "surrogateescape")
+    raw = text.encode("latin-1")
     assert b"\n'\xff\xc3\xa9 \t|,\n" in raw
 
 
@@ -580,6 +580,13 @@ def test_reasonable_nesting_compiles() -> None:
 def test_build_gives_bo_and_bdb() -> None:
     bo, bdb = build(b"x = 3.14\ny = -0.5\nz = 1.", P)
     assert bo.hex().startswith("030078007900") and len(bdb) > 0
+
+
+def test_non_ascii_paths_reach_debug_info_as_file_system_bytes(tmp_path: Path) -> None:
+    main = write(tmp_path / "d\u00e9j\u00e0" / "m.bzz", 'include "\u00e9t\u00e9.bzz"\n')
+    write(main.parent / "\u00e9t\u00e9.bzz", "x = 1")
+    bo, bdb = build(main.read_bytes(), str(main))
+    assert str(main.parent / "\u00e9t\u00e9.bzz").encode() in bdb
 
 
 def test_compile_to_asm_file_is_byte_exact(tmp_path: Path) -> None:

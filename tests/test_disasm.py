@@ -51,6 +51,11 @@ def test_readable_output() -> None:
     assert "\tdone\t|0,1,(null)" in lines
 
 
+@given(st.binary(max_size=60))
+def test_output_is_ascii(bo: bytes) -> None:
+    assert disassemble(bo).isascii()
+
+
 def test_compiled_disassembly_is_plain_reference_basm() -> None:
     # No superset form is needed for ordinary programs.
     bo, bdb = build(PROGRAMS[3], P)
