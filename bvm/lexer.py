@@ -304,12 +304,13 @@ class Lexer:
         src.pos = end + 1
         found = self._find(name, src, col)
         if found is None:
-            searched = ", ".join(repr(d) for d in self._search_dirs(src)) or "(none)"
+            searched = ", ".join(repr(d) for d in self._search_dirs(src))
             self._error(
                 src,
                 col,
                 f"Can't find file '{name}'",
-                f"searched the working directory, then: {searched}",
+                f"Can't read '{name}' in the working directory nor in: {searched} "
+                "(add directories with -I or BUZZ_INCLUDE_PATH)",
             )
         opened, raw = found
         real = _debug_name(opened)
