@@ -540,6 +540,7 @@ def test_include_not_found(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> N
     assert str(err).startswith(f"{main}:2:2: Can't find file 'nope.bzz'")
     assert err.hint is not None
     assert "/nonexistent/a" in err.hint and "/nonexistent/b" in err.hint
+    assert "Can't read 'nope.bzz'" in err.hint  # the reference's own wording
     assert str(tmp_path) in err.hint
 
 
