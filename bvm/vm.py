@@ -17,6 +17,7 @@ from __future__ import annotations
 import inspect
 import itertools
 import logging
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -28,6 +29,10 @@ from bvm.program import Program
 from bvm.values import Closure, to_buzz, to_python, type_name
 
 _log = logging.getLogger("bvm")
+
+# Python frames allowed while a VM runs: about as many nested Buzz calls when translated,
+# a quarter of that when interpreted. Deeper recursion is a clean "stack overflow" error.
+_RECURSION_LIMIT = 10_000
 
 
 class _NilBuiltins(dict):
@@ -396,6 +401,9 @@ class VM:
 
     def _run(self, body: Callable[[], Any]) -> Any:
         """Run an entry within the budget; turn every failure into a located BuzzError."""
+        # A translated Buzz call is one Python frame; allow deep recursion (docs/compat.md).
+        if sys.getrecursionlimit() < _RECURSION_LIMIT:
+            sys.setrecursionlimit(_RECURSION_LIMIT)
         self.budget.start()
         try:
             return body()
