@@ -6,9 +6,11 @@ Corpus format (one script per behaviour, see the comment at the top of each scri
   runner call init()/step() N times/destroy() and set the robot id.
 * ``NAME.out`` -- the exact expected stdout (what the script logs).
 * ``NAME.err`` -- present when the script must fail (exit code 1). Line 1 is the expected
-  location ``LINE:COL`` (1-based line, 0-based column, spec §2.1/§5.2/§7.12) or ``*`` when it is
-  not pinned. Line 2 is the expected start of the message (the text after ``file:line:col: ``);
-  an empty line 2 accepts any message, a line 2 starting with ``~`` is matched as a substring.
+  location ``LINE:COL`` (1-based line, 0-based column, spec §2.1/§5.2/§7.12), optionally
+  prefixed by the name of the file it must be in (``inc.bzz:LINE:COL``, for included code), or
+  ``*`` when it is not pinned. Line 2 is the expected start of the message (the text after
+  ``file:line:col: ``); an empty line 2 accepts any message, a line 2 starting with ``~`` is
+  matched as a substring.
 
 The expected outputs were derived from /work/shared/spec/buzz-language-vm.md plus the lead's
 compat decisions (scripts named ``compat_*``), not by running the implementation.
@@ -100,11 +102,14 @@ def test_conformance(script: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPat
             ) or any((message.lstrip("~") in line) for line in lines)
             assert ok, f"expected message {message!r}{context}"
         return
-    want_line, want_col = (int(x) for x in location.split(":"))
+    want_file, _, want_pos = location.rpartition(":")
+    want_file, _, want_line_text = want_file.rpartition(":")
+    want_line, want_col = int(want_line_text), int(want_pos)
     located = [m for m in map(LOCATED_RE.match, lines) if m]
     assert located, f"no `file:line:col: message` line on stderr{context}"
     ok = any(
-        int(m.group("line")) == want_line
+        m.group("path").endswith(want_file)
+        and int(m.group("line")) == want_line
         and int(m.group("col")) == want_col
         and _message_matches(m.group("msg"), message)
         for m in located
@@ -122,7 +127,9 @@ def test_corpus_is_complete() -> None:
         err = script.with_suffix(".err")
         if err.exists():
             loc = err.read_text().splitlines()[0].strip()
-            assert loc == "*" or re.fullmatch(r"\d+:\d+", loc), f"bad location in {err.name}"
+            assert loc == "*" or re.fullmatch(r"(?:[\w.-]+:)?\d+:\d+", loc), (
+                f"bad location in {err.name}"
+            )
     for orphan in CONFORMANCE.glob("*.out"):
         assert orphan.with_suffix(".bzz").exists(), f"{orphan.name} has no script"
     for orphan in CONFORMANCE.glob("*.err"):
