@@ -15,6 +15,10 @@ from bvm.values import INT_MAX, INT_MIN, Closure, Table, f32, format_float, i32,
 
 _NUM = (int, float)
 
+# The NaN an invalid operation makes on x86 (the "default NaN") has its sign bit set: C
+# prints it "-nan". Python raises where C would produce it, so it is built here.
+DEFAULT_NAN = -math.nan
+
 
 def _numbers(a: Any, b: Any, verb: str) -> None:
     """Raise the arithmetic type error unless both operands are numbers."""
@@ -59,8 +63,10 @@ def div(a: Any, b: Any) -> Any:
     _numbers(a, b, "divide")
     fa, fb = f32(a), f32(b)
     if fb == 0.0:
-        if fa == 0.0 or fa != fa:
-            return math.nan
+        if fa != fa:
+            return fa
+        if fa == 0.0:
+            return DEFAULT_NAN
         return math.copysign(math.inf, fa) * math.copysign(1.0, fb)
     return f32(fa / fb)
 
@@ -79,7 +85,7 @@ def mod(a: Any, b: Any) -> Any:
     try:
         r = math.fmod(fa, fb)
     except ValueError:  # x % 0.0 and inf % x are NaN in C
-        return math.nan
+        return fa if fa != fa else DEFAULT_NAN
     return f32(r + fb) if r < 0 else r
 
 
@@ -94,7 +100,7 @@ def power(a: Any, b: Any) -> float:
     except ValueError:  # negative base with a fractional exponent, or 0 ^ negative
         if fa == 0.0:
             return math.inf
-        return math.nan
+        return DEFAULT_NAN
     except OverflowError:
         odd = fb == int(fb) and int(fb) % 2 == 1
         return -math.inf if fa < 0 and odd else math.inf
