@@ -185,7 +185,6 @@ def interpret(
                 raise BuzzError(f"type mismatch: expected closure, got {type_name(c)}")
             args = stack[len(stack) - n :] if n else []
             del stack[len(stack) - n - 2 :]  # the arguments, the closure and its self slot
-            g["_N"]()
             push(vm.invoke(c, tuple(args)))
         elif op is Op.PUSHF or op is Op.PUSHI:
             push(ins.arg)

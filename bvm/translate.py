@@ -591,13 +591,15 @@ class _Codegen:
 
     @staticmethod
     def wrap_check(t: str, op: Op, b: _Expr) -> str:
-        """The int32 overflow test; adding or subtracting a small literal can only go one way."""
+        """The int32 overflow test. Its bounds are +-2**30 because CPython 3.11 specializes
+        comparisons only with such "compact" ints; `_i32` is exact for everything beyond.
+        Adding or subtracting a small literal can only leave the range one way."""
         small = b.ty == INT and b.const is not None and 0 <= b.const < 0x40000000
         if small and op is Op.ADD:
-            return f"if {t} > 2147483647: {t} = _i32({t})"
+            return f"if {t} > 1073741823: {t} = _i32({t})"
         if small and op is Op.SUB:
-            return f"if {t} < -2147483648: {t} = _i32({t})"
-        return f"if not -2147483648 <= {t} <= 2147483647: {t} = _i32({t})"
+            return f"if {t} < -1073741824: {t} = _i32({t})"
+        return f"if not -1073741824 <= {t} <= 1073741823: {t} = _i32({t})"
 
     def helper_binary(self, ins: Instruction) -> None:
         b, a = self.pop(), self.pop()
@@ -918,7 +920,6 @@ def translate(
             gen.consts[general] = vm.entry(addr, n_actrec).call_general
             call = f"{general}(_C{''.join(f', {p}' for p in params)})"
             prologue.append(f"if {' or '.join(guards)}: return {call}")
-        prologue.append("_N()")
         if any(k < n_actrec for k in gen.used_locals):
             prologue.append(f"{', '.join(f'_l{k}' for k in range(n_actrec))}, = _C.actrec")
     if gen.global_names:

@@ -22,8 +22,8 @@ from collections.abc import Callable
 from typing import Any
 
 from bvm import translate as _translate
-from bvm.budget import Budget
-from bvm.errors import BuzzError
+from bvm.budget import Budget, BudgetTimeout
+from bvm.errors import BuzzBudgetExceeded, BuzzError
 from bvm.interp import Halt, interpret
 from bvm.program import Program
 from bvm.values import Closure, to_buzz, to_python, type_name
@@ -116,7 +116,6 @@ class Entry:
         vm, addr = self.vm, self.addr
 
         def run(closure: Closure, *args: Any) -> Any:
-            vm.globals["_N"]()
             return interpret(vm, addr, [*closure.actrec, *args])
 
         return run
@@ -134,8 +133,9 @@ class VM:
         max_seconds: float | None = None,
         translate: bool = True,
     ) -> None:
-        """`max_ticks` bounds the loop iterations plus calls of one entry (execute or call);
-        `max_seconds` bounds its wall time. Exceeding either is a BuzzBudgetExceeded.
+        """`max_ticks` bounds the loop iterations of one entry (execute or call), the same
+        on every run; `max_seconds` bounds its wall time, whatever the script does.
+        Exceeding either is a BuzzBudgetExceeded.
         `translate=False` runs everything on the reference interpreter (for testing)."""
         self.robot_id = robot_id & 0xFFFF
         self.translate = translate
@@ -159,7 +159,7 @@ class VM:
 
     @property
     def max_ticks(self) -> int | None:
-        """Loop iterations plus calls allowed per entry (None: unbounded)."""
+        """Loop iterations allowed per entry (None: unbounded)."""
         return self.budget.max_ticks
 
     @max_ticks.setter
@@ -410,6 +410,9 @@ class VM:
         except Halt:
             self.state = "done"
             return None
+        except BudgetTimeout as e:
+            err = BuzzBudgetExceeded(self.budget.timeout_message())
+            raise self._fail(err, e.__traceback__) from None
         except BuzzError as e:
             raise self._fail(e, e.__traceback__) from None
         except StopIteration as e:

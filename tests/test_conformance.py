@@ -29,6 +29,19 @@ import pytest
 CONFORMANCE = Path(__file__).parent / "conformance"
 SCRIPTS = sorted(CONFORMANCE.glob("*.bzz"))
 
+# Scripts for parts of the library that a later issue delivers: they must fail until then
+# (strict: the day they pass, this list must shrink).
+PENDING = {
+    "lib_cclosure_ids_swarm": "neighbors, stigmergy and swarm natives arrive with issue 3",
+}
+
+
+def _param(script: Path) -> object:
+    reason = PENDING.get(script.stem)
+    marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
+    return pytest.param(script, id=script.stem, marks=marks)
+
+
 HEADER_RE = re.compile(r"^#\s*(steps|robot-id):\s*(-?\d+)\s*$")
 LOCATED_RE = re.compile(r"^(?P<path>.*?):(?P<line>\d+):(?P<col>\d+): (?P<msg>.*)$")
 
@@ -58,7 +71,7 @@ def _message_matches(message: str, expected: str) -> bool:
     return message.startswith(expected)
 
 
-@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.stem)
+@pytest.mark.parametrize("script", [_param(s) for s in SCRIPTS])
 def test_conformance(script: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from typer.testing import CliRunner
 

@@ -168,13 +168,25 @@ def test_infinite_loop_hits_the_tick_budget(translate: bool) -> None:
     assert vm.error is not None and vm.error.location is not None
 
 
-def test_budget_counts_calls_and_resets_per_entry() -> None:
-    src = "function fib(n) { if (n < 2) return n  return fib(n - 1) + fib(n - 2) }"
+def test_tick_budget_is_deterministic_and_resets_per_entry() -> None:
+    src = "function count(n) { var i = 0  while (i < n) { i = i + 1 }  return i }"
     vm, _ = make_vm(src, max_ticks=1000)
-    assert vm.call("fib", 10) == 55  # 177 calls
-    assert vm.call("fib", 10) == 55  # a fresh allowance each entry
-    with pytest.raises(bvm.BuzzBudgetExceeded):
-        vm.call("fib", 20)  # 21,891 calls
+    assert vm.call("count", 999) == 999
+    assert vm.call("count", 999) == 999  # a fresh allowance each entry
+    with pytest.raises(bvm.BuzzBudgetExceeded, match="more than 1000 loop iterations"):
+        vm.call("count", 1001)
+
+
+@pytest.mark.parametrize("translate", [True, False], ids=["translated", "interpreted"])
+def test_time_budget_stops_runaway_recursion(translate: bool) -> None:
+    # No loop at all: exponential recursion is stopped by the time budget.
+    src = "function fib(n) { if (n < 2) return n  return fib(n - 1) + fib(n - 2) }"
+    vm, _ = make_vm(src, translate, max_seconds=0.05)
+    with pytest.raises(bvm.BuzzBudgetExceeded, match="longer than 0.05 s") as info:
+        vm.call("fib", 60)
+    assert info.value.location is not None  # reported where the script was
+    vm.reset_error()
+    assert vm.call("fib", 10) == 55  # and the VM is usable again
 
 
 def test_time_budget_stops_a_runaway_step() -> None:
@@ -183,6 +195,25 @@ def test_time_budget_stops_a_runaway_step() -> None:
     with pytest.raises(bvm.BuzzBudgetExceeded, match="longer than 0.05 s"):
         vm.call("spin")
     assert time.monotonic() - t0 < 5.0  # generous: only proves it stopped
+
+
+def test_time_budget_never_fires_outside_its_entry() -> None:
+    # Deadlines that expire around the end of an entry must not leak into host code.
+    src = "function work(n) { var i = 0  while (i < n) { i = i + 1 }  return i }"
+    vm, _ = make_vm(src, max_seconds=0.0005)
+    outcomes = set()
+    for n in range(0, 20000, 400):
+        try:
+            outcomes.add(vm.call("work", n) == n)
+        except bvm.BuzzBudgetExceeded:
+            outcomes.add("timeout")
+            vm.reset_error()
+    assert True in outcomes  # some entries finished in time
+    end = time.monotonic() + 0.05
+    spins = 0
+    while time.monotonic() < end:  # plain Python: any stray timeout would raise here
+        spins += 1
+    assert spins > 0
 
 
 # ---------------------------------------------------------------- recursion
