@@ -1,25 +1,26 @@
 """The step budget: a bound on loop iterations, and on wall time.
 
-Loop iterations are counted in translated code by one C call per iteration, `_N()`,
-where `_N` is the `__next__` of `itertools.repeat(None, n)`: it raises StopIteration once
-`n` iterations are spent, with no Python-level counter on the hot path. The count is
-deterministic, so simulations stay reproducible.
+Loop iterations: each translated loop counts down a Python local from `_K` (1,000) and
+settles with the budget once per `_K` iterations (`_tick()`) and when it exits or returns
+(`_charge(n)`), so the hot path is a local decrement and test. The count is deterministic:
+simulations stay reproducible. It is settled in chunks, so a budget is noticed at most one
+chunk per running loop late; the interpreter settles every iteration.
 
 Wall time needs nothing on the hot path: when it runs out, a timer thread raises
 `BudgetTimeout` inside the VM's thread (CPython delivers it at the next bytecode
-boundary, wherever the script is: in a loop, deep in recursion, in a callback), and also
-swaps in an exhausted ticker.
+boundary, wherever the script is: in a loop, deep in recursion, in a callback).
 """
 
 from __future__ import annotations
 
 import ctypes
-import itertools
-import operator
 import threading
 from typing import Any
 
 from bvm.errors import BuzzBudgetExceeded
+
+#: Loop iterations between two settlements with the budget.
+CHUNK = 1000
 
 # PyThreadState_SetAsyncExc(thread, exc) raises exc in that thread; NULL withdraws it.
 _API = ("PyThreadState_SetAsyncExc", ctypes.pythonapi)
@@ -34,24 +35,36 @@ class BudgetTimeout(BuzzBudgetExceeded):
         super().__init__(message)
 
 
-def _exhausted() -> Any:
-    return itertools.repeat(None, 0).__next__
-
-
 class Budget:
-    """Installs the ticker `_N` into a namespace and arms the timer, for one VM entry."""
+    """Counts one VM entry's loop iterations and arms its timer."""
 
     def __init__(self, namespace: dict[str, Any]) -> None:
-        self.namespace = namespace
         self.max_ticks: int | None = None
         self.max_seconds: float | None = None
-        self._ticker: Any = itertools.repeat(None)
+        self.used = 0
         self._timer: threading.Timer | None = None
         self._lock = threading.Lock()
         self._thread = 0
         self._timed_out = False
         self._generation = 0
-        namespace["_N"] = self._ticker.__next__
+        self.install(namespace)
+
+    def install(self, namespace: dict[str, Any]) -> None:
+        """Give translated code its names: `_K`, `_tick()`, `_charge(n)`."""
+        namespace["_K"] = CHUNK
+        namespace["_tick"] = self.tick
+        namespace["_charge"] = self.charge
+
+    def tick(self) -> int:
+        """A loop finished a chunk of iterations: settle it; returns the next chunk."""
+        self.charge(CHUNK)
+        return CHUNK
+
+    def charge(self, n: int) -> None:
+        """Count `n` loop iterations; raise once the budget is spent."""
+        self.used += n
+        if self.max_ticks is not None and self.used > self.max_ticks:
+            raise BuzzBudgetExceeded(f"budget exceeded: more than {self.max_ticks} loop iterations")
 
     def start(self) -> None:
         """Begin an entry: a fresh allowance of iterations and, if set, of seconds."""
@@ -59,11 +72,7 @@ class Budget:
             self._timed_out = False
             self._generation += 1
             generation = self._generation
-        if self.max_ticks is None:
-            self._ticker = itertools.repeat(None)
-        else:
-            self._ticker = itertools.repeat(None, self.max_ticks)
-        self.namespace["_N"] = self._ticker.__next__
+        self.used = 0
         if self.max_seconds is not None:
             self._thread = threading.get_ident()
             self._timer = threading.Timer(self.max_seconds, self._expire, (generation,))
@@ -85,19 +94,8 @@ class Budget:
             if generation != self._generation:
                 return  # that entry already ended
             self._timed_out = True
-            self.namespace["_N"] = _exhausted()
             _raise_in(self._thread, BudgetTimeout)
 
     def timeout_message(self) -> str:
         """The message of a time-budget error."""
         return f"budget exceeded: ran longer than {self.max_seconds} s"
-
-    def exceeded(self) -> BuzzBudgetExceeded | None:
-        """The budget error if a StopIteration just raised came from the ticker, else None."""
-        if self._timed_out:
-            return BuzzBudgetExceeded(self.timeout_message())
-        if self.max_ticks is not None and operator.length_hint(self._ticker) == 0:
-            return BuzzBudgetExceeded(
-                f"budget exceeded: more than {self.max_ticks} loop iterations"
-            )
-        return None

@@ -72,7 +72,7 @@ def interpret(
     program = vm.program
     size = len(program.bytecode)
     decode = program.decode
-    g = vm.globals  # holds the budget ticker `_N` (see bvm/budget.py)
+    charge = vm.budget.charge  # one loop iteration per backward jump (bvm/budget.py)
     stack: list[Any] = []
     push = stack.append
     pop = stack.pop
@@ -229,7 +229,7 @@ def interpret(
         elif op is Op.JUMP:
             pc = _target(ins.arg, size)  # type: ignore[arg-type]
             if pc <= ins.addr:
-                g["_N"]()
+                charge(1)
         elif op is Op.JUMPZ or op is Op.JUMPNZ:
             if not stack:
                 raise _empty()
@@ -237,7 +237,7 @@ def interpret(
             if is_true(x) == (op is Op.JUMPNZ):
                 pc = _target(ins.arg, size)  # type: ignore[arg-type]
                 if pc <= ins.addr:
-                    g["_N"]()
+                    charge(1)
         else:  # pragma: no cover - every opcode is handled above
             raise BuzzError("unknown instruction")
 

@@ -163,6 +163,7 @@ class _Codegen:
         self.dead = False
         self.ntemps = 0
         self.consts: dict[str, Any] = {}
+        self.counters: list[str] = []  # the loop-iteration counters of the enclosing loops
         self.result_type = ANY
         self.used_locals: set[int] = set()
         self.global_names: set[str] = set()
@@ -241,7 +242,16 @@ class _Codegen:
         self.indent -= 1
 
     def tick(self, offset: int) -> None:
-        self.emit("_N()", offset)
+        """End of an iteration: count it on the loop's local counter (see bvm/budget.py)."""
+        counter = self.counters[-1]
+        self.emit(f"{counter} -= 1", offset)
+        self.emit(f"if not {counter}: {counter} = _tick()", offset)
+
+    def settle(self, offset: int) -> None:
+        """Charge the iterations the enclosing loops' counters have not settled yet."""
+        if self.counters:
+            spent = " + ".join(f"_K - {c}" for c in self.counters)
+            self.emit(f"_charge({spent})", offset)
 
     def snapshot(self) -> tuple:
         return (len(self.lines), list(self.types), self.dead, self.indent, self.loops)
@@ -290,6 +300,9 @@ class _Codegen:
         if self.loops > _MAX_LOOPS:
             raise NotStructured("loops nested too deeply")
         shape = self.for_shape(i, j, header)
+        counter = f"_n{self.loops}"
+        self.emit(f"{counter} = _K", header)
+        self.counters.append(counter)
         snap = self.snapshot()
         for _ in range(_MAX_PASSES):
             entry_types = list(self.types)
@@ -316,6 +329,8 @@ class _Codegen:
             self.types = widened
         else:
             raise NotStructured("loop types did not settle")
+        self.counters.pop()
+        self.emit(f"_charge(_K - {counter})", header)
         self.loops -= 1
         self.dead = False
         exits = loop.exit_types if loop.exit_types is not None else entry_types
@@ -534,6 +549,7 @@ class _Codegen:
             if self.toplevel:
                 raise NotStructured("return at top level")
             value = "None" if op is Op.RET0 else self.val(self.pop())
+            self.settle(at)
             self.emit(f"return {value}", at)
             self.stack.clear()
             self.dead = True

@@ -15,7 +15,6 @@ bvm/interp.py for whatever the translator declines. Both call closures the same 
 from __future__ import annotations
 
 import inspect
-import itertools
 import logging
 import sys
 from collections.abc import Callable
@@ -183,7 +182,7 @@ class VM:
         g["_gstore"] = self.gstore
         g["_native"] = self.native_closure
         g["_call_failed"] = self.call_failed
-        g["_N"] = self.budget.namespace.get("_N") or itertools.repeat(None).__next__
+        self.budget.install(g)
 
     # ------------------------------------------------------------ loading
 
@@ -415,9 +414,6 @@ class VM:
             raise self._fail(err, e.__traceback__) from None
         except BuzzError as e:
             raise self._fail(e, e.__traceback__) from None
-        except StopIteration as e:
-            err = self.budget.exceeded() or BuzzError(f"host function error: {e!r}")
-            raise self._fail(err, e.__traceback__) from None
         except RecursionError as e:
             err = BuzzError("stack overflow: function calls nested too deeply")
             raise self._fail(err, e.__traceback__) from None
