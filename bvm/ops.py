@@ -157,31 +157,15 @@ def rshift(a: Any, b: Any) -> int:
 def equals(a: Any, b: Any) -> bool:
     """a == b. Numbers by value (IEEE), strings by bytes, everything else by identity."""
     ca, cb = a.__class__, b.__class__
-    if ca is int:
-        if cb is int:
-            return a == b
-        if cb is float:
-            return f32(a) == b
-        if cb is str:
-            return str(a) == b
-        return False
-    if ca is float:
-        if cb is float:
-            return a == b
-        if cb is int:
-            return a == f32(b)
-        if cb is str:
-            return format_float(a) == b
-        return False
-    if ca is str:
-        if cb is str:
-            return a == b
-        if cb is int:
-            return a == str(b)
-        if cb is float:
-            return a == format_float(b)
-        return False
-    return a is b
+    if ca is cb:
+        return a == b if ca in _NUM or ca is str else a is b
+    if ca in _NUM and cb in _NUM:
+        return f32(a) == f32(b)  # an int is converted to binary32 first
+    if ca is str and cb in _NUM:
+        return a == _as_text(b)
+    if cb is str and ca in _NUM:
+        return _as_text(a) == b
+    return False
 
 
 def not_equals(a: Any, b: Any) -> bool:

@@ -141,6 +141,14 @@ def b_isuserdata(_self: Any, x: Any) -> int:
 # ---------------------------------------------------------------- natives calling back
 
 
+def _table_and_closure(t: Any, f: Any) -> None:
+    """The argument checks of foreach/map/reduce/filter."""
+    if t.__class__ is not Table:
+        raise expected("table", t)
+    if f.__class__ is not Closure:
+        raise expected("closure", f)
+
+
 def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
     """foreach, map, reduce and filter bound to `vm` (they call back into Buzz code)."""
     # These run a Buzz closure per entry, so they call `f.fn` directly (one Python call per
@@ -149,10 +157,7 @@ def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
 
     def b_foreach(_self: Any, t: Any, f: Any) -> None:
         """foreach(t, f): f(key, value) for every entry, in table order; returns nil."""
-        if t.__class__ is not Table:
-            raise expected("table", t)
-        if f.__class__ is not Closure:
-            raise expected("closure", f)
+        _table_and_closure(t, f)
         for k, v in list(t.items()):
             try:
                 f.fn(f, k, v)
@@ -162,10 +167,7 @@ def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
 
     def b_map(_self: Any, t: Any, f: Any) -> Table:
         """map(t, f): a new table {k: f(k, v)}; nil results are omitted, closures not re-bound."""
-        if t.__class__ is not Table:
-            raise expected("table", t)
-        if f.__class__ is not Closure:
-            raise expected("closure", f)
+        _table_and_closure(t, f)
         out = Table()
         for k, v in list(t.items()):
             try:
@@ -178,10 +180,7 @@ def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
 
     def b_reduce(_self: Any, t: Any, f: Any, acc: Any) -> Any:
         """reduce(t, f, acc): acc = f(k, v, acc) for every entry; returns acc."""
-        if t.__class__ is not Table:
-            raise expected("table", t)
-        if f.__class__ is not Closure:
-            raise expected("closure", f)
+        _table_and_closure(t, f)
         for k, v in list(t.items()):
             try:
                 acc = f.fn(f, k, v, acc)
@@ -191,10 +190,7 @@ def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
 
     def b_filter(_self: Any, t: Any, f: Any) -> Table:
         """filter(t, f): a new table with the entries for which f(k, v) is true."""
-        if t.__class__ is not Table:
-            raise expected("table", t)
-        if f.__class__ is not Closure:
-            raise expected("closure", f)
+        _table_and_closure(t, f)
         out = Table()
         for k, v in list(t.items()):
             try:

@@ -79,51 +79,42 @@ def m_abs(_self: Any, x: Any) -> Any:
     raise BuzzError(f"type mismatch: expected float or integer, got {type_name(x)}")
 
 
-def m_floor(_self: Any, x: Any) -> int:
-    """math.floor(x) -> int; ints unchanged; NaN, inf and out of range -> INT_MIN."""
+def _to_int(x: Any, rounding: Any) -> int:
+    """An int argument unchanged; a float rounded, with x86's INT_MIN for NaN, inf and out of
+    range; anything else a type error."""
     cls = x.__class__
     if cls is int:
         return x
     if cls is float:
         try:
-            r = _floor(x)
+            r = rounding(x)
         except (ValueError, OverflowError):  # NaN, infinities
             return INT_MIN
         return r if INT_MIN <= r <= INT_MAX else INT_MIN
     raise BuzzError(f"type mismatch: expected float or integer, got {type_name(x)}")
+
+
+def m_floor(_self: Any, x: Any) -> int:
+    """math.floor(x) -> int; ints unchanged; NaN, inf and out of range -> INT_MIN."""
+    return _to_int(x, _floor)
 
 
 def m_ceil(_self: Any, x: Any) -> int:
     """math.ceil(x) -> int; ints unchanged; NaN, inf and out of range -> INT_MIN."""
-    cls = x.__class__
-    if cls is int:
-        return x
-    if cls is float:
-        try:
-            r = _ceil(x)
-        except (ValueError, OverflowError):  # NaN, infinities
-            return INT_MIN
-        return r if INT_MIN <= r <= INT_MAX else INT_MIN
-    raise BuzzError(f"type mismatch: expected float or integer, got {type_name(x)}")
+    return _to_int(x, _ceil)
 
 
 def m_round(_self: Any, x: Any) -> int:
     """math.round(x) -> int, half away from zero (C roundf); NaN, inf, out of range -> INT_MIN."""
-    cls = x.__class__
-    if cls is int:
-        return x
-    if cls is float:
-        a = -x if x < 0 else x
-        try:
-            r = _floor(a)
-        except (ValueError, OverflowError):  # NaN, infinities
-            return INT_MIN
-        if a - r >= 0.5:  # exact: a - floor(a) is representable
-            r += 1
-        if x < 0:
-            r = -r
-        return r if INT_MIN <= r <= INT_MAX else INT_MIN
-    raise BuzzError(f"type mismatch: expected float or integer, got {type_name(x)}")
+    return _to_int(x, _round_half_away)
+
+
+def _round_half_away(x: float) -> int:
+    a = -x if x < 0 else x
+    r = _floor(a)
+    if a - r >= 0.5:  # exact: a - floor(a) is representable
+        r += 1
+    return -r if x < 0 else r
 
 
 def _logf(fn: Any, invalid: float) -> Any:

@@ -20,7 +20,7 @@ from fractions import Fraction
 from typing import Any
 
 from bvm.errors import BuzzError
-from bvm.values import Table, f32, format_float, format_value, type_name
+from bvm.values import Table, f32, format_value, type_name
 
 _Vm = Any
 
@@ -141,18 +141,7 @@ def strtof(s: str) -> float | None:
 
 def to_string(x: Any) -> str:
     """The text of any value: %d, %f, strings as is, nil "nil", others as `log` prints them."""
-    cls = x.__class__
-    if cls is str:
-        return x
-    if cls is int:
-        return str(x)
-    if cls is float:
-        return format_float(x)
-    if x is None:
-        return "nil"
-    if cls is Table:
-        return f"[table with {len(x)} elems]"
-    return format_value(x)
+    return "nil" if x is None else format_value(x)
 
 
 # ---------------------------------------------------------------- natives
