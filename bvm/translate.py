@@ -810,7 +810,12 @@ class _Codegen:
             self.consts[owner] = closure.actrec[0]
         argv = "".join(f", {self.val(a)}" for a in args)
         cc = c.code
-        self.emit(f"if {cc} is {guard}: {t} = {call}({owner}{argv})", at)
+        direct = f"{call}({owner}{argv})"
+        fast = self.inline_native(impl, args)
+        if fast is not None:
+            expr, tests = fast
+            direct = f"{expr} if {' and '.join(tests)} else {direct}" if tests else expr
+        self.emit(f"if {cc} is {guard}: {t} = {direct}", at)
         self.result_type = _native_result_type(impl)
         self.emit("else:", at)
         self.emit(f"    try: {t} = {cc}.fn({cc}{argv})", at)
@@ -820,6 +825,23 @@ class _Codegen:
             at,
         )
         return True
+
+    def inline_native(self, impl: Any, args: list[_Expr]) -> tuple[str, list[str]] | None:
+        """A library native's declared inline expression (`impl.inline`) for these arguments,
+        with the class tests it still needs; None when it does not apply. The expression can
+        use the helpers of `helpers()` (`_len`...), never Python's builtins."""
+        inline = getattr(impl, "inline", None)
+        if inline is None or len(inline[1]) != len(args):
+            return None
+        template, types = inline
+        tests = []
+        for a, ty in zip(args, types, strict=True):
+            if self.vtype(a) == ty:
+                continue
+            if self.vtype(a) != ANY:
+                return None  # known to be another type: the native raises its error
+            tests.append(f"{a.code}.__class__ is {_GUARD_CLASS[ty]}")
+        return template.format(*(self.val(a) for a in args)), tests
 
     def lstore(self, ins: Instruction) -> None:
         k = ins.arg
@@ -976,6 +998,7 @@ def helpers() -> dict[str, Any]:
     return {
         "_int": int,
         "_float": float,
+        "_len": len,
         "_str": str,
         "_TypeError": TypeError,
         "_AttributeError": AttributeError,

@@ -21,6 +21,9 @@ from bvm.errors import BuzzError
 INT_MIN = -0x80000000
 INT_MAX = 0x7FFFFFFF
 
+#: The longest string a script may build: a doubling loop must not exhaust a robot's memory.
+MAX_STRING_BYTES = 16 * 1024 * 1024
+
 # A C-style (double)->(float) conversion: correctly rounded, overflow -> inf, no exception.
 # Translated code assigns to and reads back this one-element binary32 array inline.
 F32_CELL = memoryview(bytearray(4)).cast("f")

@@ -216,6 +216,13 @@ def test_time_budget_never_fires_outside_its_entry() -> None:
     assert spins > 0
 
 
+def test_doubling_string_is_stopped_before_it_eats_memory() -> None:
+    src = 'function grow() { var s = "x"  while (1) { s = string.concat(s, s) } }'
+    vm, _ = make_vm(src)
+    with pytest.raises(bvm.BuzzError, match="string too long: .*the limit is 16777216"):
+        vm.call("grow")
+
+
 # ---------------------------------------------------------------- recursion
 
 

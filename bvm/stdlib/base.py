@@ -103,6 +103,10 @@ def b_size(_self: Any, t: Any) -> int:
     return len(t)
 
 
+# What the translator may emit instead of a call, for arguments of these types.
+b_size.inline = ("_len({0})", ("table",))  # type: ignore[attr-defined]
+
+
 def b_isnil(_self: Any, x: Any) -> int:
     """isnil(x): 1 if x is nil, else 0."""
     return 1 if x is None else 0

@@ -20,7 +20,7 @@ from fractions import Fraction
 from typing import Any
 
 from bvm.errors import BuzzError
-from bvm.values import Table, f32, format_value, type_name
+from bvm.values import MAX_STRING_BYTES, Table, f32, format_value, type_name
 
 _Vm = Any
 
@@ -154,6 +154,10 @@ def s_length(_self: Any, s: Any) -> int:
     return len(s)
 
 
+# What the translator may emit instead of a call, for arguments of these types.
+s_length.inline = ("_len({0})", ("str",))  # type: ignore[attr-defined]
+
+
 def s_sub(_self: Any, *args: Any) -> str | None:
     """string.sub(s, n [, m]): bytes [n, m) of s; nil if n >= length or m < n.
 
@@ -188,9 +192,15 @@ def s_concat(_self: Any, *args: Any) -> str:
         raise BuzzError(
             f"wrong number of local variables: expected at least 2 parameters, got {len(args)}"
         )
+    total = 0
     for a in args:
         if a.__class__ is not str:
             raise _expected("string", a)
+        total += len(a)
+    if total > MAX_STRING_BYTES:
+        raise BuzzError(
+            f"string too long: concat would make {total} bytes (the limit is {MAX_STRING_BYTES})"
+        )
     return "".join(args)
 
 
