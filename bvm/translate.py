@@ -811,7 +811,7 @@ class _Codegen:
         argv = "".join(f", {self.val(a)}" for a in args)
         cc = c.code
         direct = f"{call}({owner}{argv})"
-        fast = self.inline_native(impl, args)
+        fast = self.inline_native(impl, args, direct)
         if fast is not None:
             expr, tests = fast
             direct = f"{expr} if {' and '.join(tests)} else {direct}" if tests else expr
@@ -826,10 +826,15 @@ class _Codegen:
         )
         return True
 
-    def inline_native(self, impl: Any, args: list[_Expr]) -> tuple[str, list[str]] | None:
+    def inline_native(
+        self, impl: Any, args: list[_Expr], call: str
+    ) -> tuple[str, list[str]] | None:
         """A library native's declared inline expression (`impl.inline`) for these arguments,
-        with the class tests it still needs; None when it does not apply. The expression can
-        use the helpers of `helpers()` (`_len`...), never Python's builtins."""
+        with the class tests it still needs; None when it does not apply.
+
+        The template gets the arguments as {0}, {1}... and the real call as {call} (for the
+        cases it leaves to the native). It can use the helpers of `helpers()` (`_len`...),
+        never Python's builtins, and must be exactly the native's result when it applies."""
         inline = getattr(impl, "inline", None)
         if inline is None or len(inline[1]) != len(args):
             return None
@@ -841,7 +846,7 @@ class _Codegen:
             if self.vtype(a) != ANY:
                 return None  # known to be another type: the native raises its error
             tests.append(f"{a.code}.__class__ is {_GUARD_CLASS[ty]}")
-        return template.format(*(self.val(a) for a in args)), tests
+        return template.format(*(self.val(a) for a in args), call=call), tests
 
     def lstore(self, ins: Instruction) -> None:
         k = ins.arg

@@ -186,6 +186,13 @@ def s_sub(_self: Any, *args: Any) -> str | None:
     return s[n:m]
 
 
+# The common case inline; anything else (nil results, clamping, errors) calls s_sub.
+s_sub.inline = (  # type: ignore[attr-defined]
+    "{0}[{1}:{2}] if 0 <= {1} < _len({0}) and {1} <= {2} else {call}",
+    ("str", "int", "int"),
+)
+
+
 def s_concat(_self: Any, *args: Any) -> str:
     """string.concat(s1, s2, ...): the concatenation of two or more strings."""
     if len(args) < 2:
@@ -204,9 +211,18 @@ def s_concat(_self: Any, *args: Any) -> str:
     return "".join(args)
 
 
+s_concat.inline = (  # type: ignore[attr-defined]
+    f"{{0}} + {{1}} if _len({{0}}) + _len({{1}}) <= {MAX_STRING_BYTES} else {{call}}",
+    ("str", "str"),
+)
+
+
 def s_tostring(_self: Any, x: Any) -> str:
     """string.tostring(x): see `to_string`."""
     return to_string(x)
+
+
+s_tostring.inline = ("_str({0})", ("int",))  # type: ignore[attr-defined]
 
 
 def s_toint(_self: Any, s: Any) -> int | None:
