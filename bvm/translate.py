@@ -814,7 +814,8 @@ class _Codegen:
         fast = self.inline_native(impl, args, direct)
         if fast is not None:
             expr, tests = fast
-            direct = f"{expr} if {' and '.join(tests)} else {direct}" if tests else expr
+            # Parenthesized: the template may itself be a conditional expression.
+            direct = f"({expr}) if {' and '.join(tests)} else {direct}" if tests else expr
         self.emit(f"if {cc} is {guard}: {t} = {direct}", at)
         self.result_type = _native_result_type(impl)
         self.emit("else:", at)
