@@ -78,15 +78,93 @@ def python_name(name: str) -> str | None:
     return None
 
 
+# An int's known interval (lo, hi); None when it may be any int32.
+Range = tuple[int, int] | None
+_I32 = (-0x80000000, 0x7FFFFFFF)
+_NEGATE = {"<": ">=", "<=": ">", ">": "<=", ">=": "<", "==": "!=", "!=": "=="}
+_MIRROR = {"<": ">", "<=": ">=", ">": "<", ">=": "<=", "==": "==", "!=": "!="}
+
+
+def _fits(lo: int, hi: int) -> Range:
+    """The interval if it stays inside int32 (no wrap can happen), else None."""
+    return (lo, hi) if _I32[0] <= lo and hi <= _I32[1] else None
+
+
+def _interval(op: Op, a: Range, b: Range) -> Range:
+    """The interval of a + b, a - b or a * b when both are known and it fits int32."""
+    if a is None or b is None:
+        return None
+    if op is Op.ADD:
+        return _fits(a[0] + b[0], a[1] + b[1])
+    if op is Op.SUB:
+        return _fits(a[0] - b[1], a[1] - b[0])
+    products = [x * y for x in a for y in b]
+    return _fits(min(products), max(products))
+
+
+def _int_test_of(a: _Expr, sym: str, b: _Expr) -> tuple[int, str, int] | None:
+    """(slot, operator, literal) when a comparison tests an INT local against an int literal."""
+    local = re.fullmatch(r"_l(\d+)", a.code)
+    if a.ty == INT and local and b.ty == INT and b.const is not None:
+        return int(local.group(1)), sym, b.const
+    local = re.fullmatch(r"_l(\d+)", b.code)
+    if b.ty == INT and local and a.ty == INT and a.const is not None:
+        return int(local.group(1)), _MIRROR[sym], a.const
+    return None
+
+
+def _join_range(a: Range, b: Range) -> Range:
+    if a is None or b is None:
+        return None
+    return (min(a[0], b[0]), max(a[1], b[1]))
+
+
+def _widen(old: Range, new: Range) -> Range:
+    """At a loop header: a bound that moved goes to the int32 limit, so loops settle fast."""
+    if old is None or new is None:
+        return None
+    lo = old[0] if new[0] >= old[0] else _I32[0]
+    hi = old[1] if new[1] <= old[1] else _I32[1]
+    return None if (lo, hi) == _I32 else (lo, hi)
+
+
+def _refine(rng: Range, op: str, c: int) -> Range:
+    """What `x op c` being true says about x."""
+    lo, hi = rng if rng is not None else _I32
+    if op == "<":
+        hi = min(hi, c - 1)
+    elif op == "<=":
+        hi = min(hi, c)
+    elif op == ">":
+        lo = max(lo, c + 1)
+    elif op == ">=":
+        lo = max(lo, c)
+    elif op == "==":
+        lo, hi = max(lo, c), min(hi, c)
+    if lo > hi:  # the branch cannot run: any fact is sound, keep the old one
+        return rng
+    return None if (lo, hi) == _I32 else (lo, hi)
+
+
 class _Expr:
     """A symbolic stack entry: side-effect-free Python code, its static type and constant."""
 
-    __slots__ = ("code", "ty", "const", "origin")
+    __slots__ = ("code", "ty", "const", "origin", "rng", "cmp")
 
-    def __init__(self, code: str, ty: str = ANY, const: Any = None, origin: Any = None) -> None:
+    def __init__(
+        self,
+        code: str,
+        ty: str = ANY,
+        const: Any = None,
+        origin: Any = None,
+        rng: Range = None,
+        cmp: tuple[int, str, int] | None = None,
+    ) -> None:
         self.code = code
         self.ty = ty
         self.const = const  # the value of a literal; None when not a literal (or nil)
+        self.rng = rng  # for an INT: the interval it is known to lie in (None: any int32)
+        self.cmp = cmp  # for a BOOL: (local slot, operator, int literal) it tests
         # What a loaded value currently is at translation time (a global, or a member of
         # a global table): lets a call to a host function skip the closure protocol.
         self.origin = origin
@@ -97,12 +175,12 @@ class _Expr:
 
 
 class _Loop:
-    __slots__ = ("exit", "start", "exit_types")
+    __slots__ = ("exit", "start", "exits")
 
     def __init__(self, exit_addr: int | None, start: int) -> None:
         self.exit = exit_addr
         self.start = start
-        self.exit_types: list[str] | None = None
+        self.exits: tuple[list[str], list[Range]] | None = None  # locals at the breaks
 
 
 def discover(vm: VM, entry: int) -> list[Instruction]:
@@ -156,6 +234,7 @@ class _Codegen:
                 self.headers.add(ins.arg)
         self.toplevel = toplevel
         self.types = list(slot_types)  # the static type of each live local slot
+        self.ranges: list[Range] = [None] * len(slot_types)  # intervals of INT locals
         self.stack: list[_Expr] = []
         self.lines: list[tuple[int, str, int]] = []
         self.indent = 1
@@ -179,8 +258,8 @@ class _Codegen:
         self.ntemps += 1
         return f"_t{self.ntemps}"
 
-    def push(self, code: str, ty: str = ANY, const: Any = None) -> None:
-        self.stack.append(_Expr(code, ty, const))
+    def push(self, code: str, ty: str = ANY, const: Any = None, rng: Range = None) -> None:
+        self.stack.append(_Expr(code, ty, const, rng=rng))
 
     def pop(self) -> _Expr:
         if not self.stack:
@@ -198,7 +277,7 @@ class _Codegen:
             self.consts[name] = value
             self.push(name, ty, value)
         else:
-            self.push(repr(value), ty, value)
+            self.push(repr(value), ty, value, (value, value) if ty == INT else None)
 
     @staticmethod
     def val(e: _Expr) -> str:
@@ -254,12 +333,20 @@ class _Codegen:
             self.emit(f"_charge({spent})", offset)
 
     def snapshot(self) -> tuple:
-        return (len(self.lines), list(self.types), self.dead, self.indent, self.loops)
+        return (
+            len(self.lines),
+            list(self.types),
+            list(self.ranges),
+            self.dead,
+            self.indent,
+            self.loops,
+        )
 
     def restore(self, snap: tuple) -> None:
-        n, types, self.dead, self.indent, self.loops = snap
+        n, types, ranges, self.dead, self.indent, self.loops = snap
         del self.lines[n:]
         self.types = list(types)
+        self.ranges = list(ranges)
 
     # ------------------------------------------------------------ structure
 
@@ -286,8 +373,9 @@ class _Codegen:
     def loop(self, i: int, j: int) -> int:
         """A loop whose header is instruction i; returns the index after it.
 
-        The body is emitted assuming the local types at entry; if the types at the end
-        of an iteration differ, the header types are widened and the body re-emitted.
+        The body is emitted assuming the locals' types and int ranges at entry; if they
+        differ at the end of an iteration, the header's are widened (types joined, moving
+        range bounds sent to the int32 limits) and the body is emitted again.
         """
         instrs = self.instrs
         header = instrs[i].addr
@@ -305,9 +393,9 @@ class _Codegen:
         self.counters.append(counter)
         snap = self.snapshot()
         for _ in range(_MAX_PASSES):
-            entry_types = list(self.types)
+            entry = (list(self.types), list(self.ranges))
             if shape is not None:
-                after, loop, end_types = self.for_loop(i, shape)
+                after, loop, end = self.for_loop(i, shape)
             else:
                 k = backs[-1]
                 exit_addr = instrs[k + 1].addr if k + 1 < len(instrs) else None
@@ -315,27 +403,35 @@ class _Codegen:
                 self.emit("while True:", header)
                 self.indent += 1
                 self.region(i, k, loop)
-                end_types = None if self.dead else list(self.types)
-                self.end_iteration(len(entry_types), instrs[k].addr)
+                end = None if self.dead else (list(self.types), list(self.ranges))
+                self.end_iteration(len(entry[0]), instrs[k].addr)
                 after = k + 1
-            if end_types is not None and len(end_types) != len(entry_types):
+            if end is not None and len(end[0]) != len(entry[0]):
                 raise NotStructured("loop body changes the number of locals")
-            widened = entry_types
-            if end_types is not None:
-                widened = [_join(a, b) for a, b in zip(entry_types, end_types, strict=True)]
-            if widened == entry_types:
+            widened = entry
+            if end is not None:
+                widened = (
+                    [_join(a, b) for a, b in zip(entry[0], end[0], strict=True)],
+                    [_widen(a, _join_range(a, b)) for a, b in zip(entry[1], end[1], strict=True)],
+                )
+                widened = (widened[0], self.int_ranges(widened[0], widened[1]))
+            if widened == entry:
                 break
             self.restore(snap)
-            self.types = widened
+            self.types, self.ranges = list(widened[0]), list(widened[1])
         else:
             raise NotStructured("loop types did not settle")
         self.counters.pop()
         self.emit(f"_charge(_K - {counter})", header)
         self.loops -= 1
         self.dead = False
-        exits = loop.exit_types if loop.exit_types is not None else entry_types
-        self.types = exits
+        self.types, self.ranges = loop.exits if loop.exits is not None else entry
         return after
+
+    @staticmethod
+    def int_ranges(types: list[str], ranges: list[Range]) -> list[Range]:
+        """Ranges only mean something for INT locals."""
+        return [r if t == INT else None for t, r in zip(types, ranges, strict=True)]
 
     def for_shape(self, i: int, j: int, header: int) -> tuple[int, int, int, int] | None:
         """(p, lb, le, lu) when instructions from i have the compiler's `for` shape.
@@ -360,9 +456,7 @@ class _Codegen:
             return None
         return p, lb, le, lu
 
-    def for_loop(
-        self, i: int, shape: tuple[int, int, int, int]
-    ) -> tuple[int, _Loop, list[str] | None]:
+    def for_loop(self, i: int, shape: tuple[int, int, int, int]) -> tuple[int, _Loop, Any]:
         p, lb, le, lu = shape
         instrs = self.instrs
         nslots = len(self.types)
@@ -371,13 +465,14 @@ class _Codegen:
         loop = _Loop(instrs[le].addr, i)
         self.region(i, p, loop, leaves=1)
         cond = self.pop()
-        self.note_exit(loop)
+        self.note_exit(loop, cond, False)
         self.emit(f"if {self.falsity(cond)}: break", instrs[p].addr)
+        self.assume(cond, True)
         self.region(lb, le - 1, _Loop(instrs[le].addr, lb))
         self.region(lu, lb - 1, _Loop(instrs[le].addr, lu))
-        end_types = None if self.dead else list(self.types)
+        end = None if self.dead else (list(self.types), list(self.ranges))
         self.end_iteration(nslots, instrs[lb - 1].addr)
-        return le, loop, end_types
+        return le, loop, end
 
     def end_iteration(self, nslots: int, offset: int) -> None:
         if not self.dead:
@@ -386,16 +481,29 @@ class _Codegen:
             self.tick(offset)
         self.indent -= 1
 
-    def note_exit(self, loop: _Loop) -> None:
-        """Record the local types at a `break` (joined over every exit of the loop)."""
-        if loop.exit_types is None:
-            loop.exit_types = list(self.types)
-        elif len(loop.exit_types) != len(self.types):
+    def note_exit(self, loop: _Loop, cond: _Expr | None = None, holds: bool = True) -> None:
+        """Record the locals' state at a `break` taken when `cond` is `holds` (joined over
+        every exit of the loop)."""
+        types, ranges = list(self.types), list(self.ranges)
+        if cond is not None and cond.cmp is not None:
+            slot, op, c = cond.cmp
+            ranges[slot] = _refine(ranges[slot], op if holds else _NEGATE[op], c)
+        if loop.exits is None:
+            loop.exits = (types, ranges)
+        elif len(loop.exits[0]) != len(types):
             raise NotStructured("loop exits with different numbers of locals")
         else:
-            loop.exit_types = [
-                _join(a, b) for a, b in zip(loop.exit_types, self.types, strict=True)
-            ]
+            loop.exits = (
+                [_join(a, b) for a, b in zip(loop.exits[0], types, strict=True)],
+                [_join_range(a, b) for a, b in zip(loop.exits[1], ranges, strict=True)],
+            )
+
+    def assume(self, cond: _Expr, holds: bool) -> None:
+        """Code that runs only when `cond` is `holds`: narrow the tested local's range."""
+        if cond.cmp is not None:
+            slot, op, c = cond.cmp
+            if slot < len(self.ranges) and self.types[slot] == INT:
+                self.ranges[slot] = _refine(self.ranges[slot], op if holds else _NEGATE[op], c)
 
     def branch(self, i: int, j: int, loop: _Loop | None) -> int:
         """A conditional jump at instruction i: a loop exit, an if, or an if/else."""
@@ -405,17 +513,19 @@ class _Codegen:
         if self.stack:
             raise NotStructured("stack not empty at a branch")
         # The jump is taken when the value is false (jumpz) or true (jumpnz).
-        taken = self.falsity(cond) if ins.op is Op.JUMPZ else self.truth(cond)
-        stays = self.truth(cond) if ins.op is Op.JUMPZ else self.falsity(cond)
+        jumps_if = ins.op is Op.JUMPNZ
+        taken = self.truth(cond) if jumps_if else self.falsity(cond)
+        stays = self.falsity(cond) if jumps_if else self.truth(cond)
         target = ins.arg
         if loop is not None and target == loop.exit:
-            self.note_exit(loop)
+            self.note_exit(loop, cond, jumps_if)
             self.emit(f"if {taken}: break", ins.addr)
+            self.assume(cond, not jumps_if)
             return i + 1
         m = self.index.get(target)  # type: ignore[arg-type]
         if m is None or m <= i or m > j:
             raise NotStructured("branch leaves its region")
-        entry_types = list(self.types)
+        entry = (list(self.types), list(self.ranges))
         self.emit(f"if {stays}:", ins.addr)
         last = instrs[m - 1]
         n2 = None
@@ -423,27 +533,32 @@ class _Codegen:
             n2 = self.index.get(last.arg)  # type: ignore[arg-type]
             if n2 is not None and n2 > j:
                 n2 = None
+        self.assume(cond, not jumps_if)
         self.block(i + 1, m - 1 if n2 is not None else m, loop, ins.addr)
-        then_dead, then_types = self.dead, self.types
+        then_dead, then_state = self.dead, (self.types, self.ranges)
         self.dead = False
-        self.types = list(entry_types)
+        self.types, self.ranges = list(entry[0]), list(entry[1])
+        self.assume(cond, jumps_if)
         if n2 is None:
-            else_dead, else_types = False, entry_types
+            else_dead, else_state = False, (self.types, self.ranges)
             after = m
         else:
             self.emit("else:", last.addr)
             self.block(m, n2, loop, last.addr)
-            else_dead, else_types = self.dead, self.types
+            else_dead, else_state = self.dead, (self.types, self.ranges)
             after = n2
         if then_dead and else_dead:
             self.dead = True
-            self.types = entry_types
+            self.types, self.ranges = entry
         elif then_dead or else_dead:
-            self.types = list(else_types if then_dead else then_types)
-        elif len(then_types) != len(else_types):
+            state = else_state if then_dead else then_state
+            self.types, self.ranges = list(state[0]), list(state[1])
+        elif len(then_state[0]) != len(else_state[0]):
             raise NotStructured("branches leave different numbers of locals")
         else:
-            self.types = [_join(a, b) for a, b in zip(then_types, else_types, strict=True)]
+            self.types = [_join(a, b) for a, b in zip(then_state[0], else_state[0], strict=True)]
+            joined = [_join_range(a, b) for a, b in zip(then_state[1], else_state[1], strict=True)]
+            self.ranges = self.int_ranges(self.types, joined)
         return after
 
     # ------------------------------------------------------------ instructions
@@ -536,7 +651,7 @@ class _Codegen:
             if k >= len(self.types):  # type: ignore[operator]
                 raise NotStructured("reads a local that does not exist")
             self.used_locals.add(k)  # type: ignore[arg-type]
-            self.push(f"_l{k}", self.types[k])  # type: ignore[index]
+            self.push(f"_l{k}", self.types[k], rng=self.ranges[k])  # type: ignore[index]
         elif op is Op.LSTORE:
             self.lstore(ins)
         elif op is Op.LREMOVE:
@@ -545,6 +660,7 @@ class _Codegen:
                 raise NotStructured("removes locals that do not exist")
             if n:
                 del self.types[len(self.types) - n :]  # type: ignore[operator]
+                del self.ranges[len(self.ranges) - n :]  # type: ignore[operator]
         elif op is Op.RET0 or op is Op.RET1:
             if self.toplevel:
                 raise NotStructured("return at top level")
@@ -571,12 +687,29 @@ class _Codegen:
         at = ins.addr
         if ta == INT and tb == INT:
             self.emit(f"{t} = {av} {sym} {bv}", at)
-            self.emit(self.wrap_check(t, ins.op, b), at)
-            self.push(t, INT)
+            rng = _interval(
+                ins.op, a.rng if a.ty == INT else (0, 1), b.rng if b.ty == INT else (0, 1)
+            )
+            if rng is None:  # it may leave int32: wrap
+                self.emit(self.wrap_check(t, ins.op, b), at)
+            self.push(t, INT, rng=rng)
         elif ta == FLOAT and tb == FLOAT:
             self.emit(f"_F[0] = {av} {sym} {bv}", at)
             self.emit(f"{t} = _F[0]", at)
             self.push(t, FLOAT)
+        elif ta in (INT, ANY) and tb in (INT, ANY) and ins.op is not Op.MUL:
+            # Let Python add or subtract whatever it is given, and check the result once:
+            # an int in range is the answer; anything else (a float, a concatenated string)
+            # is redone by the full rule, and a TypeError means the types don't combine.
+            # (Not for `*`: "ab" * 2**31 would allocate before any check.)
+            self.emit(f"try: {t} = {av} {sym} {bv}", at)
+            self.emit(f"except _TypeError: {t} = {slow}({av}, {bv})", at)
+            self.emit(
+                f"if {t}.__class__ is not _int or not -1073741824 <= {t} <= 1073741823: "
+                f"{t} = _redo({slow}, {av}, {bv}, {t})",
+                at,
+            )
+            self.push(t, ANY)
         elif ta in (INT, ANY) and tb in (INT, ANY):
             self.emit(f"if {self.int_test(a, b)}:", at)
             self.emit(f"    {t} = {av} {sym} {bv}", at)
@@ -681,7 +814,7 @@ class _Codegen:
         if same and (equality or ta in (INT, FLOAT, STR)):
             # Python's own comparison is Buzz's for these (IEEE for floats, bytes for strings).
             # It cannot fail, so it stays an expression: `if a < b:` with no temporary.
-            self.push(f"({av} {sym} {bv})", BOOL)
+            self.stack.append(_Expr(f"({av} {sym} {bv})", BOOL, cmp=_int_test_of(a, sym, b)))
             return
         if equality and ta != ANY and tb != ANY and NIL in (ta, tb):
             self.push("False" if ins.op is Op.EQ else "True", BOOL)
@@ -783,7 +916,8 @@ class _Codegen:
             # Zero-cost try: a non-closure has no `.fn`, a wrong argument count is a
             # TypeError raised at this very call; _call_failed tells those from errors
             # raised inside the callee, which it re-raises.
-            self.emit(f"try: {t} = {cc}.fn({cc}{argv})", at)
+            # `_fn = c.fn; _fn(...)`: CPython 3.11 specializes a slot load, not a method load.
+            self.emit(f"try: _fn = {cc}.fn; {t} = _fn({cc}{argv})", at)
             self.emit(
                 f"except (_TypeError, _AttributeError) as _e: "
                 f"{t} = _call_failed(_e, {cc}, ({''.join(f'{self.val(a)}, ' for a in args)}))",
@@ -819,7 +953,7 @@ class _Codegen:
         self.emit(f"if {cc} is {guard}: {t} = {direct}", at)
         self.result_type = _native_result_type(impl)
         self.emit("else:", at)
-        self.emit(f"    try: {t} = {cc}.fn({cc}{argv})", at)
+        self.emit(f"    try: _fn = {cc}.fn; {t} = _fn({cc}{argv})", at)
         self.emit(
             f"    except (_TypeError, _AttributeError) as _e: "
             f"{t} = _call_failed(_e, {cc}, ({''.join(f'{self.val(a)}, ' for a in args)}))",
@@ -856,15 +990,17 @@ class _Codegen:
             raise NotStructured("stores past the end of the locals")
         if k == len(self.types):
             self.types.append(ANY)
+            self.ranges.append(None)
         name = f"_l{k}"
         # Values already on the stack that read this local must keep the old value.
         for idx, e in enumerate(self.stack):
             if re.search(rf"\b{name}\b", e.code):
                 t = self.temp()
                 self.emit(f"{t} = {self.val(e)}", ins.addr)
-                self.stack[idx] = _Expr(t, self.vtype(e))
+                self.stack[idx] = _Expr(t, self.vtype(e), rng=e.rng)
         self.emit(f"{name} = {self.val(v)}", ins.addr)
         self.types[k] = self.vtype(v)  # type: ignore[index]
+        self.ranges[k] = v.rng if v.ty == INT else None  # type: ignore[index]
         self.used_locals.add(k)  # type: ignore[arg-type]
 
     def prev_addr(self, ins: Instruction) -> int:
@@ -995,6 +1131,11 @@ def translate(
     return local["_f"]
 
 
+def _redo(rule: Callable[[Any, Any], Any], a: Any, b: Any, result: Any) -> Any:
+    """Python's `a + b` (or `-`) was not a small int: wrap an int, else apply the full rule."""
+    return i32(result) if result.__class__ is int else rule(a, b)
+
+
 def _not_callable(c: Any) -> Any:
     raise BuzzError(f"type mismatch: expected closure, got {type_name(c)}")
 
@@ -1013,6 +1154,7 @@ def helpers() -> dict[str, Any]:
         "_Halt": Halt,
         "_F": F32_CELL,
         "_i32": i32,
+        "_redo": _redo,
         "_not_callable": _not_callable,
         "_add": ops.add,
         "_sub": ops.sub,
