@@ -1,14 +1,17 @@
 """The step budget: a bound on loop iterations, and on wall time.
 
-Loop iterations: each translated loop counts down a Python local from `_K` (1,000) and
-settles with the budget once per `_K` iterations (`_tick()`) and when it exits or returns
+Loop iterations (backward jumps: one per `while` iteration, two per `for` iteration, as
+the bytecode has them): each translated loop counts down a Python local from `_K` (1,000)
+and settles with the budget once per `_K` (`_tick()`) and when it exits or returns
 (`_charge(n)`), so the hot path is a local decrement and test. The count is deterministic:
-simulations stay reproducible. It is settled in chunks, so a budget is noticed at most one
-chunk per running loop late; the interpreter settles every iteration.
+simulations stay reproducible. Translated loops settle in chunks, so there a budget is
+noticed at most one chunk per running loop late; the interpreter settles every jump.
 
 Wall time needs nothing on the hot path: when it runs out, a timer thread raises
 `BudgetTimeout` inside the VM's thread (CPython delivers it at the next bytecode
-boundary, wherever the script is: in a loop, deep in recursion, in a callback).
+boundary, wherever the script is: in a loop, deep in recursion, in a callback). It is
+only delivered while the VM is inside the entry, and again every 50 ms in case a host
+function swallowed it.
 """
 
 from __future__ import annotations
@@ -19,8 +22,9 @@ from typing import Any
 
 from bvm.errors import BuzzBudgetExceeded
 
-#: Loop iterations between two settlements with the budget.
+#: Loop iterations between two settlements with the budget (even: `for` loops count 2).
 CHUNK = 1000
+_RETRY = 0.05  # seconds between deliveries of a timeout that has not ended the entry
 
 # PyThreadState_SetAsyncExc(thread, exc) raises exc in that thread; NULL withdraws it.
 _API = ("PyThreadState_SetAsyncExc", ctypes.pythonapi)
@@ -45,6 +49,7 @@ class Budget:
         self._timer: threading.Timer | None = None
         self._lock = threading.Lock()
         self._thread = 0
+        self._active = False  # the VM thread is inside the entry: a timeout may land
         self._timed_out = False
         self._generation = 0
         self.install(namespace)
@@ -62,39 +67,53 @@ class Budget:
 
     def charge(self, n: int) -> None:
         """Count `n` loop iterations; raise once the budget is spent."""
+        if self._timed_out:
+            raise BudgetTimeout()
         self.used += n
         if self.max_ticks is not None and self.used > self.max_ticks:
             raise BuzzBudgetExceeded(f"budget exceeded: more than {self.max_ticks} loop iterations")
 
     def start(self) -> None:
         """Begin an entry: a fresh allowance of iterations and, if set, of seconds."""
+        self.used = 0
         with self._lock:
             self._timed_out = False
             self._generation += 1
             generation = self._generation
-        self.used = 0
         if self.max_seconds is not None:
             self._thread = threading.get_ident()
-            self._timer = threading.Timer(self.max_seconds, self._expire, (generation,))
-            self._timer.daemon = True
-            self._timer.start()
+            self._arm(self.max_seconds, generation)
+        with self._lock:
+            # Only now, with the timer thread running, may a timeout land in this thread
+            # (never inside the threading module's own bookkeeping).
+            self._active = generation == self._generation
 
     def stop(self) -> None:
         """End an entry; a timeout that fired but was not yet delivered is withdrawn."""
         with self._lock:
             self._generation += 1
+            self._active = False
             if self._timed_out:
                 _withdraw_in(self._thread, None)
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
+        timer, self._timer = self._timer, None
+        if timer is not None:
+            timer.cancel()
+
+    def _arm(self, seconds: float, generation: int) -> None:
+        timer = threading.Timer(seconds, self._expire, (generation,))
+        timer.daemon = True
+        self._timer = timer
+        timer.start()
 
     def _expire(self, generation: int) -> None:
         with self._lock:
             if generation != self._generation:
                 return  # that entry already ended
-            self._timed_out = True
-            _raise_in(self._thread, BudgetTimeout)
+            if self._active:
+                self._timed_out = True
+                _raise_in(self._thread, BudgetTimeout)
+        # Not yet inside the entry, or the timeout may be swallowed: try again shortly.
+        self._arm(_RETRY, generation)
 
     def timeout_message(self) -> str:
         """The message of a time-budget error."""

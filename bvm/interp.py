@@ -51,6 +51,10 @@ _NOT_ENOUGH_LOCALS = (
 _TOO_FEW_LOCALS = "wrong number of local variables: not enough local symbols in stack"
 
 
+#: Local symbols one activation may hold (compiled functions use a handful).
+MAX_LOCALS = 4096
+
+
 class Halt(Exception):
     """`done` was executed: the VM stops, in state DONE."""
 
@@ -213,8 +217,10 @@ def interpret(
             v = pop()
             if i < len(lsyms):  # type: ignore[operator]
                 lsyms[i] = v  # type: ignore[index]
-            elif i - len(lsyms) > 0xFFFF:  # type: ignore[operator]
-                raise BuzzError(f"wrong number of local variables: slot {i} is out of reach")
+            elif i >= MAX_LOCALS:  # hand-made bytecode: don't let one frame eat memory
+                raise BuzzError(
+                    f"wrong number of local variables: slot {i} is past the limit of {MAX_LOCALS}"
+                )
             else:
                 # Storing past the end grows the record; the gap is nil.
                 lsyms.extend([None] * (i - len(lsyms)))  # type: ignore[operator]

@@ -31,11 +31,13 @@ import math
 import os
 import re
 import sys
+import weakref
+from types import CodeType
 from typing import TYPE_CHECKING, Any
 
 from bvm import ops
 from bvm.errors import BuzzError
-from bvm.interp import Halt
+from bvm.interp import MAX_LOCALS, Halt
 from bvm.opcodes import Op
 from bvm.program import Instruction
 from bvm.values import F32_CELL, Closure, Table, f32, i32, type_name
@@ -45,8 +47,9 @@ if TYPE_CHECKING:
 
     from bvm.vm import VM
 
-#: Generated file name -> list mapping each generated line number to a bytecode offset.
-LINE_MAPS: dict[str, list[int]] = {}
+#: Generated code object -> list mapping each generated line number to a bytecode offset.
+#: Weak, so the maps go with the translations (a node that reloads scripts doesn't grow).
+LINE_MAPS: weakref.WeakKeyDictionary[CodeType, list[int]] = weakref.WeakKeyDictionary()
 
 _MAX_INSTRUCTIONS = 100_000
 _MAX_NESTING = 80  # CPython's tokenizer allows 100 indentation levels
@@ -237,13 +240,14 @@ class _Codegen:
         self.ranges: list[Range] = [None] * len(slot_types)  # intervals of INT locals
         self.stack: list[_Expr] = []
         self.lines: list[tuple[int, str, int]] = []
+        self.emitted = 0
+        self.max_emitted = 2000 + 40 * len(instrs)
         self.indent = 1
         self.loops = 0
         self.dead = False
         self.ntemps = 0
         self.consts: dict[str, Any] = {}
         self.counters: list[str] = []  # the loop-iteration counters of the enclosing loops
-        self.result_type = ANY
         self.used_locals: set[int] = set()
         self.global_names: set[str] = set()
 
@@ -252,6 +256,11 @@ class _Codegen:
     def emit(self, text: str, offset: int) -> None:
         if self.indent > _MAX_NESTING:
             raise NotStructured("nesting too deep")
+        self.emitted += 1
+        if self.emitted > self.max_emitted:
+            # Loop re-emission while types settle can multiply with nesting: give up and
+            # interpret rather than spend unbounded time translating.
+            raise NotStructured("translation work exceeded its bound")
         self.lines.append((self.indent, text, offset))
 
     def temp(self) -> str:
@@ -320,10 +329,11 @@ class _Codegen:
             self.emit("pass", offset)
         self.indent -= 1
 
-    def tick(self, offset: int) -> None:
-        """End of an iteration: count it on the loop's local counter (see bvm/budget.py)."""
+    def tick(self, offset: int, jumps: int = 1) -> None:
+        """End of an iteration: count its backward jumps on the loop's local counter (see
+        bvm/budget.py; a `for` iteration makes two, as the interpreter counts them)."""
         counter = self.counters[-1]
-        self.emit(f"{counter} -= 1", offset)
+        self.emit(f"{counter} -= {jumps}", offset)
         self.emit(f"if not {counter}: {counter} = _tick()", offset)
 
     def settle(self, offset: int) -> None:
@@ -468,17 +478,21 @@ class _Codegen:
         self.note_exit(loop, cond, False)
         self.emit(f"if {self.falsity(cond)}: break", instrs[p].addr)
         self.assume(cond, True)
-        self.region(lb, le - 1, _Loop(instrs[le].addr, lb))
-        self.region(lu, lb - 1, _Loop(instrs[le].addr, lu))
+        body, update = _Loop(instrs[le].addr, lb), _Loop(instrs[le].addr, lu)
+        self.region(lb, le - 1, body)
+        self.region(lu, lb - 1, update)
+        for part in (body, update):  # a break out of either also exits the loop
+            if part.exits is not None:
+                self.join_exit(loop, *part.exits)
         end = None if self.dead else (list(self.types), list(self.ranges))
-        self.end_iteration(nslots, instrs[lb - 1].addr)
+        self.end_iteration(nslots, instrs[lb - 1].addr, jumps=2)
         return le, loop, end
 
-    def end_iteration(self, nslots: int, offset: int) -> None:
+    def end_iteration(self, nslots: int, offset: int, jumps: int = 1) -> None:
         if not self.dead:
             if len(self.types) != nslots:
                 raise NotStructured("loop body changes the number of locals")
-            self.tick(offset)
+            self.tick(offset, jumps)
         self.indent -= 1
 
     def note_exit(self, loop: _Loop, cond: _Expr | None = None, holds: bool = True) -> None:
@@ -488,6 +502,11 @@ class _Codegen:
         if cond is not None and cond.cmp is not None:
             slot, op, c = cond.cmp
             ranges[slot] = _refine(ranges[slot], op if holds else _NEGATE[op], c)
+        self.join_exit(loop, types, ranges)
+
+    @staticmethod
+    def join_exit(loop: _Loop, types: list[str], ranges: list[Range]) -> None:
+        """Join one exit's locals into the loop's exit record."""
         if loop.exits is None:
             loop.exits = (types, ranges)
         elif len(loop.exits[0]) != len(types):
@@ -860,7 +879,8 @@ class _Codegen:
     def key_test(self, k: _Expr) -> list[str]:
         if self.vtype(k) in (INT, STR):
             return []
-        return [f"({k.code}.__class__ is _str or {k.code}.__class__ is _int)"]
+        c = f"({k.code})" if k.is_literal else k.code  # `-1.5.__class__` would parse wrong
+        return [f"({c}.__class__ is _str or {c}.__class__ is _int)"]
 
     def tget(self, ins: Instruction) -> None:
         k, tab = self.pop(), self.pop()
@@ -908,8 +928,9 @@ class _Codegen:
         if c.ty not in (ANY, CLOSURE):
             self.emit(f"{t} = _not_callable({self.val(c)})", at)
         elif self.direct_native(c, args, t, at):
-            # Both paths call the same closure, so the result type is the native's.
-            self.push(t, self.result_type)
+            # Not the native's declared type: the unguarded path calls whatever closure
+            # the name holds by then, which may return anything.
+            self.push(t)
             return
         else:
             cc = c.code
@@ -951,7 +972,6 @@ class _Codegen:
             # Parenthesized: the template may itself be a conditional expression.
             direct = f"({expr}) if {' and '.join(tests)} else {direct}" if tests else expr
         self.emit(f"if {cc} is {guard}: {t} = {direct}", at)
-        self.result_type = _native_result_type(impl)
         self.emit("else:", at)
         self.emit(f"    try: _fn = {cc}.fn; {t} = _fn({cc}{argv})", at)
         self.emit(
@@ -986,8 +1006,10 @@ class _Codegen:
     def lstore(self, ins: Instruction) -> None:
         k = ins.arg
         v = self.pop()
-        if k > len(self.types):  # type: ignore[operator]
+        if k > len(self.types) or k >= MAX_LOCALS:  # type: ignore[operator]
             raise NotStructured("stores past the end of the locals")
+        if len(self.stack) > 64:  # compiled code stores between statements, stack near empty
+            raise NotStructured("deep stack at a local store")
         if k == len(self.types):
             self.types.append(ANY)
             self.ranges.append(None)
@@ -1031,23 +1053,6 @@ _COMPARE = {
     Op.GT: (">", "_gt"),
     Op.GTE: (">=", "_gte"),
 }
-
-
-_ANNOTATED = {"int": INT, "float": FLOAT, "str": STR, "Table": TABLE}
-
-
-def _native_result_type(impl: Callable[..., Any]) -> str:
-    """The result type a library native declares (`-> int` etc.); ANY for anything else.
-
-    Only bvm's own library is trusted this way (its annotations are checked by tests);
-    host functions registered by users give ANY.
-    """
-    if not getattr(impl, "__module__", "").startswith("bvm.stdlib"):
-        return ANY
-    annotation = getattr(impl, "__annotations__", {}).get("return")
-    if isinstance(annotation, type):
-        annotation = annotation.__name__
-    return _ANNOTATED.get(annotation, ANY) if isinstance(annotation, str) else ANY
 
 
 def param_types(args: tuple) -> tuple[str, ...]:
@@ -1127,7 +1132,7 @@ def translate(
         raise NotStructured(f"generated code did not compile: {e}") from None
     local: dict[str, Any] = {}
     exec(code, namespace, local)
-    LINE_MAPS[name] = offsets
+    LINE_MAPS[local["_f"].__code__] = offsets
     return local["_f"]
 
 

@@ -205,11 +205,18 @@ def to_buzz(x: Any) -> Any:
     return Userdata(x)
 
 
-def to_python(x: Any) -> Any:
-    """Convert a Buzz value to plain Python: tables become dicts (recursively), userdata unwraps."""
+def to_python(x: Any, _memo: dict[int, dict] | None = None) -> Any:
+    """Convert a Buzz value to plain Python: tables become dicts (recursively, keeping the
+    shape of cyclic tables), userdata unwraps."""
     cls = x.__class__
     if cls is Table:
-        return {k: to_python(v) for k, v in x.items()}
+        memo = {} if _memo is None else _memo
+        out = memo.get(id(x))
+        if out is None:
+            out = memo[id(x)] = {}
+            for k, v in x.items():
+                out[k] = to_python(v, memo) if v.__class__ is Table else to_python(v)
+        return out
     if cls is Userdata:
         return x.value
     return x

@@ -154,6 +154,7 @@ class VM:
         self._native_impls: list[Callable[..., Any] | None] = []
         self._entries: dict[tuple[int, int], Entry] = {}
         self._global_start = 0
+        self._depth = 0  # nesting of entries (host functions may call back into the VM)
         self._install_helpers()
 
     @property
@@ -200,9 +201,12 @@ class VM:
         self._entries.clear()
         self.state = "ready"
         self.error = None
-        self._global_start = self._run(
+        start = self._run(
             lambda: interpret(self, program.code_start, None, toplevel=True, stop_at_nop=True)
         )
+        if start is None:  # `done` before the prologue's `nop` (the reference hangs here)
+            raise self._fail(BuzzError("done in the function-registration prologue"))
+        self._global_start = start
         # Built-ins are stored after the prologue, so they replace same-named user
         # functions (reference behavior); later top-level assignments win again.
         stdlib.install(self)
@@ -399,13 +403,26 @@ class VM:
         return self.program
 
     def _run(self, body: Callable[[], Any]) -> Any:
-        """Run an entry within the budget; turn every failure into a located BuzzError."""
+        """Run an entry within the budget; turn every failure into a located BuzzError.
+
+        A host function that calls back into the VM (a re-entrant entry) shares the
+        budget of the entry it runs in, and its errors are the outer entry's.
+        """
+        if self._depth:
+            self._depth += 1
+            try:
+                return body()
+            finally:
+                self._depth -= 1
         # A translated Buzz call is one Python frame; allow deep recursion (docs/compat.md).
         if sys.getrecursionlimit() < _RECURSION_LIMIT:
             sys.setrecursionlimit(_RECURSION_LIMIT)
-        self.budget.start()
+        self._depth = 1
         try:
-            return body()
+            self.budget.start()
+            result = body()
+            self.budget.stop()  # from here on no timeout can be delivered
+            return result
         except Halt:
             self.state = "done"
             return None
@@ -419,11 +436,11 @@ class VM:
             raise self._fail(err, e.__traceback__) from None
         except MemoryError as e:
             raise self._fail(BuzzError("out of memory"), e.__traceback__) from None
-        except Exception as e:  # a host function failed: report it as a Buzz error
-            err = BuzzError(f"host function error: {type(e).__name__}: {e}")
-            raise self._fail(err, e.__traceback__) from None
+        except Exception as e:
+            raise self._fail(_unexpected(e), e.__traceback__) from None
         finally:
             self.budget.stop()
+            self._depth = 0
 
     def _fail(self, err: BuzzError, tb: Any = None) -> BuzzError:
         if err.offset is None and tb is not None:
@@ -444,6 +461,18 @@ class VM:
 _INTERP_CODE = interpret.__code__
 
 
+def _unexpected(e: Exception) -> BuzzError:
+    """A Python exception that is not a Buzz error: a host function's, or a bvm bug's."""
+    tb = e.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    code = tb.tb_frame.f_code if tb is not None else None
+    if code is not None and (code in _translate.LINE_MAPS or code is _INTERP_CODE):
+        # Raised by the VM's own code, not a host's: say so, rather than blame the host.
+        return BuzzError(f"internal error in bvm (please report): {type(e).__name__}: {e}")
+    return BuzzError(f"host function error: {type(e).__name__}: {e}")
+
+
 def _locate(tb: Any) -> int | None:
     """Bytecode offset of the innermost Buzz frame (interpreted or translated) in a traceback."""
     offset = None
@@ -452,7 +481,7 @@ def _locate(tb: Any) -> int | None:
         if code is _INTERP_CODE:
             offset = tb.tb_frame.f_locals.get("oldpc", offset)
         else:
-            lines = _translate.LINE_MAPS.get(code.co_filename)
+            lines = _translate.LINE_MAPS.get(code)
             if lines is not None and tb.tb_lineno < len(lines):
                 offset = lines[tb.tb_lineno]
         tb = tb.tb_next

@@ -283,3 +283,66 @@ def test_empty_program_fails_like_the_reference() -> None:
     vm = bvm.VM()
     with pytest.raises(bvm.BuzzError, match="pc out of range"):
         vm.load(bvm.compile_source(""))
+
+
+# ---------------------------------------------------------------- budget edge cases
+
+
+def test_a_timeout_never_escapes_unlocated() -> None:
+    # Tight deadlines hit every moment of an entry, the budget's own set-up included.
+    vm, _ = make_vm("function f() { return 1 }", max_seconds=0.0002)
+    for _ in range(300):
+        try:
+            assert vm.call("f") == 1
+        except bvm.BuzzBudgetExceeded:
+            assert vm.state == "error"
+            vm.reset_error()
+
+
+def test_reentrant_call_shares_the_outer_budget() -> None:
+    src = (
+        "function cb() { return 1 }\n"
+        "function spin(n) { var i = 0  while (i < n) { i = i + 1 }  hook()\n"
+        "  while (i < 2 * n) { i = i + 1 }  return i }"
+    )
+    vm, _ = make_vm(src, max_ticks=50_000)
+    vm.register("hook", lambda: vm.call("cb"))
+    assert vm.call("spin", 20_000) == 40_000
+    with pytest.raises(bvm.BuzzBudgetExceeded):
+        vm.call("spin", 30_000)  # 60,000 iterations in all, callback or not
+
+
+def test_a_swallowed_timeout_comes_back() -> None:
+    def swallow() -> int:
+        try:
+            return sum(range(2000))
+        except Exception:  # a careless host function
+            return 0
+
+    vm, _ = make_vm("function spin() { while (1) { swallow() } }", max_seconds=0.05)
+    vm.register("swallow", swallow)
+    with pytest.raises(bvm.BuzzBudgetExceeded):
+        vm.call("spin")
+
+
+# ---------------------------------------------------------------- hostile input
+
+
+def test_cyclic_table_converts_to_python() -> None:
+    vm, _ = make_vm("t = {}\nt.me = t\nt.n = 1")
+    t = vm["t"]
+    assert t["me"] is t and t["n"] == 1
+
+
+def test_hand_made_bytecode_cannot_grow_a_frame_without_bound() -> None:
+    program = bvm.assemble("!0\n\n\tnop\n\tpushnil\n\tlstore 65535\n\tdone\n")
+    vm = bvm.VM()
+    vm.load(program)
+    with pytest.raises(bvm.BuzzError, match="past the limit of 4096"):
+        vm.execute()
+
+
+def test_done_in_the_registration_prologue_is_a_clean_error() -> None:
+    vm = bvm.VM()
+    with pytest.raises(bvm.BuzzError, match="done in the function-registration prologue"):
+        vm.load(bvm.assemble("!0\n\n\tdone\n\tnop\n\tdone\n"))
