@@ -25,7 +25,9 @@ INT_MAX = 0x7FFFFFFF
 MAX_STRING_BYTES = 16 * 1024 * 1024
 
 # A C-style (double)->(float) conversion: correctly rounded, overflow -> inf, no exception.
-# Translated code assigns to and reads back this one-element binary32 array inline.
+# Translated code assigns to and reads back this one-element binary32 array inline. One
+# cell serves every VM: safe because the GIL never switches threads between the store
+# and the load of one statement pair (a free-threaded Python would need one per thread).
 F32_CELL = memoryview(bytearray(4)).cast("f")
 _F32 = F32_CELL
 
