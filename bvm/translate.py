@@ -859,7 +859,7 @@ class _Codegen:
     def gload(self, ins: Instruction) -> None:
         name = self.pop()
         t = self.temp()
-        pyname = python_name(name.const) if name.ty == STR else None
+        pyname = python_name(name.const) if name.ty == STR and name.is_literal else None
         if pyname is not None:
             self.emit(f"{t} = {pyname}", ins.addr)
             self.stack.append(_Expr(t, origin=self.vm.globals.get(pyname)))
@@ -869,7 +869,7 @@ class _Codegen:
 
     def gstore(self, ins: Instruction) -> None:
         v, name = self.pop(), self.pop()
-        pyname = python_name(name.const) if name.ty == STR else None
+        pyname = python_name(name.const) if name.ty == STR and name.is_literal else None
         if pyname is not None:
             self.global_names.add(pyname)
             self.emit(f"{pyname} = {self.val(v)}", ins.addr)
@@ -1080,6 +1080,10 @@ def translate(
     At top level: `f()`.
     """
     instrs = discover(vm, addr)
+    if instrs[0].addr != addr:
+        # Hand-made code that jumps back before its entry: regions run from the lowest
+        # address, so only the interpreter can start in the middle.
+        raise NotStructured("entry is not the function's lowest address")
     if toplevel:
         slot_types: list[str] = []
     else:

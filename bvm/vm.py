@@ -33,6 +33,9 @@ _log = logging.getLogger("bvm")
 # a quarter of that when interpreted. Deeper recursion is a clean "stack overflow" error.
 _RECURSION_LIMIT = 10_000
 
+# Translations of one function for different captured-record lengths before interpreting.
+_MAX_SHAPES = 8
+
 
 class _NilBuiltins(dict):
     """The builtins of translated code: a global that no one has set reads as nil."""
@@ -51,12 +54,24 @@ class Entry:
     which new closures call directly; other counts go through `other`.
     """
 
-    __slots__ = ("vm", "addr", "n_actrec", "by_arity", "general_by_arity", "fn", "_generic")
+    __slots__ = (
+        "vm",
+        "addr",
+        "n_actrec",
+        "by_arity",
+        "general_by_arity",
+        "fn",
+        "_generic",
+        "interpret_only",
+    )
 
-    def __init__(self, vm: VM, addr: int, n_actrec: int) -> None:
+    def __init__(self, vm: VM, addr: int, n_actrec: int, interpret_only: bool) -> None:
         self.vm = vm
         self.addr = addr
         self.n_actrec = n_actrec
+        # Each captured-record length is a translation of its own; a lambda that creates
+        # itself could ask for thousands, so past a few the interpreter takes over.
+        self.interpret_only = interpret_only
         self.by_arity: dict[int, Callable[..., Any]] = {}
         self.general_by_arity: dict[int, Callable[..., Any]] = {}
         self._generic = self.generic
@@ -80,7 +95,7 @@ class Entry:
         f = self.by_arity.get(len(args))
         if f is None:
             spec = _translate.param_types(args)
-            if not self.vm.translate or all(t == _translate.ANY for t in spec):
+            if self.interpret_only or all(t == _translate.ANY for t in spec):
                 f = self.general(len(args))
             else:
                 try:
@@ -96,7 +111,7 @@ class Entry:
     def general(self, nargs: int) -> Callable[..., Any]:
         """The unspecialized callable for `nargs` arguments: translated, else interpreted."""
         f = self.general_by_arity.get(nargs)
-        if f is None and not self.vm.translate:
+        if f is None and self.interpret_only:
             f = self.general_by_arity[nargs] = self._interpreted()
         if f is None:
             try:
@@ -153,6 +168,7 @@ class VM:
         self.native_arity: list[int | None] = []
         self._native_impls: list[Callable[..., Any] | None] = []
         self._entries: dict[tuple[int, int], Entry] = {}
+        self._shapes: dict[int, int] = {}  # captured-record lengths seen per function
         self._global_start = 0
         self._depth = 0  # nesting of entries (host functions may call back into the VM)
         self._install_helpers()
@@ -196,6 +212,7 @@ class VM:
         self._hidden.clear()
         self._install_helpers()
         self.natives.clear()
+        self._shapes.clear()
         self.native_arity.clear()
         self._native_impls.clear()
         self._entries.clear()
@@ -357,7 +374,9 @@ class VM:
         key = (addr, n_actrec)
         e = self._entries.get(key)
         if e is None:
-            e = self._entries[key] = Entry(self, addr, n_actrec)
+            shapes = self._shapes[addr] = self._shapes.get(addr, 0) + 1
+            interpret_only = not self.translate or shapes > _MAX_SHAPES
+            e = self._entries[key] = Entry(self, addr, n_actrec, interpret_only)
         return e
 
     def gload(self, name: Any) -> Any:

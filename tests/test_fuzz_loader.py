@@ -8,7 +8,7 @@ run in long campaigns with `python -m tests.fuzz.campaign --mode loader`.
 
 Internal Python errors that the VM wraps as "host function error" BuzzErrors count as
 failures (our only host function, `log`, cannot fail). Open bugs are filtered by
-`oracle.KNOWN_CRASHES` and pinned by the xfail(strict=True) tests at the end of this file.
+`oracle.KNOWN_CRASHES`; the bugs found so far are regression tests at the end of this file.
 """
 
 from __future__ import annotations
@@ -139,7 +139,6 @@ COMPUTED_GLOBAL_NAME = bytes.fromhex(
 )
 
 
-@pytest.mark.xfail(strict=True, reason="bug: translator crashes on gstore with a computed name")
 def test_bug_computed_global_name() -> None:
     """A gstore whose name is a string-typed non-literal (here an argument specialized as
     str): the translator calls python_name(None) -> "host function error: TypeError:
@@ -156,7 +155,6 @@ ENTRY_NOT_LOWEST = bytes.fromhex(
 )
 
 
-@pytest.mark.xfail(strict=True, reason="bug: translated function starts at its lowest address")
 def test_bug_function_entry_not_lowest_address() -> None:
     """When a function's entry is not the lowest address reachable from it (hand-made or
     mutated bytecode: a jump back to earlier code), the translated function runs from the
@@ -172,7 +170,6 @@ SELF_CREATING_LAMBDA = bytes.fromhex(
 )
 
 
-@pytest.mark.xfail(strict=True, reason="bug: one translation per activation-record length")
 def test_bug_self_creating_lambda() -> None:
     """The interpreter stops with "stack overflow" after 0.2 s; the translated path makes a
     new Entry and translation for every activation-record length (addr, n_actrec) and
