@@ -16,10 +16,12 @@ from __future__ import annotations
 import argparse
 import collections
 import hashlib
+import os
 import random
 import re
 import resource
 import sys
+import tempfile
 import time
 import traceback
 import warnings
@@ -198,6 +200,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--memory-mb", type=int, default=4096, help="address-space limit")
     ap.add_argument("--replay", help="SEED:K -- run one input verbosely")
     args = ap.parse_args(argv)
+    # Fuzzed programs call io.fopen relative to the cwd: give them a scratch directory.
+    os.chdir(tempfile.mkdtemp(prefix="bvm-fuzz-"))
     # Translated code that is certain to fail (e.g. `'abc'['x']`) draws SyntaxWarnings.
     warnings.simplefilter("ignore", SyntaxWarning)
     if args.memory_mb:
