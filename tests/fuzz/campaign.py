@@ -112,7 +112,9 @@ class Campaign:
         files = {".bo": bo, ".bdb": bdb}
         rss = oracle.max_rss_mib()
         try:
-            with oracle.deadline(self.timeout):
+            # Four runs (two paths, then the differential), each up to max_ticks=10_000
+            # loop iterations: interpreted hostile code takes up to ~5 s per run.
+            with oracle.deadline(3 * self.timeout):
                 paths = (False,) if oracle.lambda_cycle(bo) else (True, False)
                 results = [
                     oracle.check_loader(bo, bdb, translate=t, known=self.known) for t in paths
