@@ -47,9 +47,7 @@ def _examples(n: int) -> int:
 def check(bo: bytes, bdb: bytes = b"") -> None:
     """The loader property on both execution paths, within 10 s and bounded memory."""
     rss = oracle.max_rss_mib()
-    # Known bug "translation-per-actrec-size" (test_bug_self_creating_lambda below): a
-    # lambda that creates itself takes ~50 s and ~900 MiB on the translated path.
-    paths = (False,) if oracle.lambda_cycle(bo) else (True, False)
+    paths = (True, False)
     try:
         with oracle.deadline(10):
             for translate in paths:

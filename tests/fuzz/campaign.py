@@ -115,12 +115,12 @@ class Campaign:
             # Four runs (two paths, then the differential), each up to max_ticks=10_000
             # loop iterations: interpreted hostile code takes up to ~5 s per run.
             with oracle.deadline(3 * self.timeout):
-                paths = (False,) if oracle.lambda_cycle(bo) else (True, False)
+                paths = (True, False)
                 results = [
                     oracle.check_loader(bo, bdb, translate=t, known=self.known) for t in paths
                 ]
                 verdict = None
-                if results[0].stage != "rejected" and len(paths) == 2:
+                if results[0].stage != "rejected":
                     program = bvm.Program(bo, bdb, "/fuzz/input.bo")
                     verdict = oracle.run_both(
                         program, [], max_ticks=10_000, call_rounds=(), known=self.known
@@ -130,7 +130,7 @@ class Campaign:
             return "hang"
         if oracle.max_rss_mib() - rss > 512:
             self.fail("loader", k, f"memory: +512 MiB ({origin})", "", files)
-        for r, path in zip(results, ("translated", "interpreted")[-len(results) :], strict=True):
+        for r, path in zip(results, ("translated", "interpreted"), strict=True):
             if r.problem:
                 sig = _signature(f"loader {path}: {r.problem}")
                 self.fail("loader", k, sig, f"{origin}\n{r.stage}: {r.problem}", files)
@@ -138,10 +138,6 @@ class Campaign:
         for r in results:
             if r.known:
                 return f"known:{r.known}"
-        if len(paths) == 1:
-            return "known:translation-per-actrec-size"  # only the interpreter was run
-        if verdict is not None and not verdict.ok and oracle.entry_not_lowest(bo):
-            return "known:entry-not-lowest"
         if verdict is not None and not verdict.ok:
             first = verdict.detail.splitlines()[0] if verdict.kind == "crash" else ""
             sig = _signature(f"mutant {verdict.kind}: {first or _mismatch_shape(verdict.detail)}")
