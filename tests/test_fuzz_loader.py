@@ -180,3 +180,22 @@ def test_bug_self_creating_lambda() -> None:
     except oracle.Hang:
         raise AssertionError("translated run still going after 2 s") from None
     assert outcome == _run(SELF_CREATING_LAMBDA, False)
+
+
+# f(1): `if (a) { log("a") jump FAR } else { return 0 }`, unrelated code (`pushi 7; ret1`),
+# then FAR: log("b"); return.
+JUMP_OVER_UNREACHABLE_CODE = bytes.fromhex(
+    "040066006c6f6700610062002500000000262c0000001d000225000000001c24010000002401"
+    "00000021040129010000002d4e0000000225010000001c2502000000240100000021042c5a"
+    "0000002400000000062407000000060225010000001c25030000002401000000210405"
+)
+
+
+@pytest.mark.xfail(strict=True, reason="bug: translated if/else drops the code after a far jump")
+def test_bug_then_branch_jumps_over_unreachable_code() -> None:
+    """Found by the loader campaign (seed B3:825, a mutated backward jump): when the `then`
+    branch of an if/else ends with a forward `jump` past unreachable code (here another
+    function's `pushi 7; ret1`) and the `else` branch returns, the translated function
+    returns nil after the `then` branch instead of continuing at the jump target: it logs
+    only "a"; the interpreter logs "a" then "b"."""
+    assert _run(JUMP_OVER_UNREACHABLE_CODE, True) == _run(JUMP_OVER_UNREACHABLE_CODE, False)
