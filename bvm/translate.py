@@ -570,11 +570,14 @@ class _Codegen:
             self.dead = True
             self.types, self.ranges = entry
         elif then_dead or else_dead:
+            # Only one branch returns: the code after the if/else runs (from the other).
+            self.dead = False
             state = else_state if then_dead else then_state
             self.types, self.ranges = list(state[0]), list(state[1])
         elif len(then_state[0]) != len(else_state[0]):
             raise NotStructured("branches leave different numbers of locals")
         else:
+            self.dead = False
             self.types = [_join(a, b) for a, b in zip(then_state[0], else_state[0], strict=True)]
             joined = [_join_range(a, b) for a, b in zip(then_state[1], else_state[1], strict=True)]
             self.ranges = self.int_ranges(self.types, joined)

@@ -191,7 +191,6 @@ JUMP_OVER_UNREACHABLE_CODE = bytes.fromhex(
 )
 
 
-@pytest.mark.xfail(strict=True, reason="bug: translated if/else drops the code after a far jump")
 def test_bug_then_branch_jumps_over_unreachable_code() -> None:
     """Found by the loader campaign (seed B3:825, a mutated backward jump): when the `then`
     branch of an if/else ends with a forward `jump` past unreachable code (here another

@@ -167,3 +167,14 @@ def test_hostile_deep_stack_is_not_translated_quadratically() -> None:
     body = "\n".join(["\tpushi 1\n\tlstore 0"] + ["\tlload 0"] * n + ["\tlstore 0"] * n)
     program = bvm.assemble(f"!0\n\n\tnop\n{body}\n\tdone\n")
     assert run(program, True) == run(program, False) == ([], ("ok", None))
+
+
+def test_code_after_an_if_else_whose_else_returns_still_runs() -> None:
+    source = (
+        "function f(c) {\n  var x = 0\n  if (c) { x = 1 } else { return 2 }\n"
+        "  return x + 10\n}\n"
+        'function g(c) {\n  if (c) { return 1 } else { log("else") }\n  return 3\n}\n'
+    )
+    assert both(source, "f", 1)[1] == ("ok", 11)
+    assert both(source, "f", 0)[1] == ("ok", 2)
+    assert both(source, "g", 0) == (["else"], ("ok", 3))
