@@ -55,11 +55,15 @@ class Program:
     strings: list[str] = field(init=False)
     code_start: int = field(init=False)
     locations: dict[int, tuple[str, int, int]] = field(init=False)
+    _ids: list[str] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.bytecode) > MAX_FILE_BYTES or len(self.debug) > MAX_FILE_BYTES:
             raise BuzzLoadError(f"{self.path}: file larger than {MAX_FILE_BYTES} bytes")
         self.strings, self.code_start = _parse_strings(self.bytecode, self.path)
+        own = set(self.strings)
+        # Ids past the program's own strings name the library's, as the reference numbers them.
+        self._ids = self.strings + [s for s in BUILTIN_STRINGS if s not in own]
         self.locations = _parse_debug(self.debug, self.path)
 
     @classmethod
@@ -77,15 +81,7 @@ class Program:
     def string(self, sid: int) -> str | None:
         """The string a `pushs` id names, or None when no string has that id."""
         sid &= 0xFFFF
-        if sid < len(self.strings):
-            return self.strings[sid]
-        extra = [s for s in BUILTIN_STRINGS if s not in self._string_set]
-        k = sid - len(self.strings)
-        return extra[k] if k < len(extra) else None
-
-    @property
-    def _string_set(self) -> frozenset[str]:
-        return frozenset(self.strings)
+        return self._ids[sid] if sid < len(self._ids) else None
 
     def location(self, offset: int) -> tuple[str, int, int] | None:
         """(file, line, col) of the instruction at `offset`, from the .bdb."""

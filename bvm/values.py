@@ -29,13 +29,12 @@ MAX_STRING_BYTES = 16 * 1024 * 1024
 # cell serves every VM: safe because the GIL never switches threads between the store
 # and the load of one statement pair (a free-threaded Python would need one per thread).
 F32_CELL = memoryview(bytearray(4)).cast("f")
-_F32 = F32_CELL
 
 
 def f32(x: float) -> float:
     """Round a Python float to the nearest binary32 value (as C's cast does)."""
-    _F32[0] = x
-    return _F32[0]
+    F32_CELL[0] = x
+    return F32_CELL[0]
 
 
 def i32(x: int) -> int:
