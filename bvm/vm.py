@@ -165,8 +165,8 @@ class VM:
         self.state = "no code"
         self.error: BuzzError | None = None
         self.natives: list[Closure | None] = []
-        self.native_arity: list[int | None] = []
-        self._native_impls: list[Callable[..., Any] | None] = []
+        # Per C-function id: (implementation, fixed arity or None); None for reserved ids.
+        self._native_impls: list[tuple[Callable[..., Any], int | None] | None] = []
         self._entries: dict[tuple[int, int], Entry] = {}
         self._shapes: dict[int, int] = {}  # captured-record lengths seen per function
         self._global_start = 0
@@ -213,7 +213,6 @@ class VM:
         self._install_helpers()
         self.natives.clear()
         self._shapes.clear()
-        self.native_arity.clear()
         self._native_impls.clear()
         self._entries.clear()
         self.state = "ready"
@@ -295,7 +294,7 @@ class VM:
             if not c.native:
                 # A translation takes exactly its argument count; go through the entry.
                 return self.entry(c.ref, len(c.actrec)).other(c, args)
-            arity = self.native_arity[c.ref] if c.ref < len(self.native_arity) else None
+            arity = self.native_impl(c.ref)[1]
             if arity is not None and arity != len(args):
                 raise BuzzError(
                     f"wrong number of local variables: expected {arity} parameters, got {len(args)}"
@@ -342,20 +341,19 @@ class VM:
         fn.__name__ = fn.__qualname__ = f"native_{name}"
         closure = Closure(fid, True, (None,), fn)
         self.natives.append(closure)
-        self.native_arity.append(arity)
-        self._native_impls.append(impl)
+        self._native_impls.append((impl, arity))
         return closure
 
     def native_impl(self, fid: int) -> tuple[Callable[..., Any] | None, int | None]:
         """The implementation and fixed arity (None: any) of host function `fid`."""
-        if 0 <= fid < len(self._native_impls):
-            return self._native_impls[fid], self.native_arity[fid]
+        info = self._native_impls[fid] if 0 <= fid < len(self._native_impls) else None
+        if info is not None:
+            return info
         return None, None
 
     def reserve_native_ids(self, count: int) -> None:
         """Skip `count` C-function ids, for library parts registered elsewhere."""
         self.natives.extend([None] * count)
-        self.native_arity.extend([None] * count)
         self._native_impls.extend([None] * count)
 
     def native_closure(self, fid: int) -> Closure:
