@@ -17,7 +17,7 @@ from __future__ import annotations
 import inspect
 import logging
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from bvm import translate as _translate
@@ -172,6 +172,7 @@ class VM:
         self._global_start = 0
         self._depth = 0  # nesting of entries (host functions may call back into the VM)
         self._install_helpers()
+        self._new_swarm_state()
 
     @property
     def max_ticks(self) -> int | None:
@@ -190,6 +191,18 @@ class VM:
     @max_seconds.setter
     def max_seconds(self, value: float | None) -> None:
         self.budget.max_seconds = value
+
+    def _new_swarm_state(self) -> None:
+        # Imported here: the library modules import bvm.vm's neighbours, not the reverse.
+        from bvm.network import Network
+        from bvm.stdlib.neighbors import Neighbors
+        from bvm.stdlib.stigmergy import Stigmergies
+        from bvm.stdlib.swarm import Swarms
+
+        self.net = Network(self)
+        self.neighbors = Neighbors(self)
+        self.stigmergies = Stigmergies(self)
+        self.swarms = Swarms(self)
 
     def _install_helpers(self) -> None:
         g = self.globals
@@ -215,6 +228,7 @@ class VM:
         self._shapes.clear()
         self._native_impls.clear()
         self._entries.clear()
+        self._new_swarm_state()
         self.state = "ready"
         self.error = None
         start = self._run(
@@ -351,11 +365,6 @@ class VM:
             return info
         return None, None
 
-    def reserve_native_ids(self, count: int) -> None:
-        """Skip `count` C-function ids, for library parts registered elsewhere."""
-        self.natives.extend([None] * count)
-        self._native_impls.extend([None] * count)
-
     def native_closure(self, fid: int) -> Closure:
         """The closure `pushcc fid` makes."""
         c = self.natives[fid] if 0 <= fid < len(self.natives) else None
@@ -409,6 +418,33 @@ class VM:
     def namespace(self) -> dict[str, Any]:
         """The module globals of translated code (shared: it holds the Buzz globals)."""
         return self.globals
+
+    # ------------------------------------------------------------ swarm host interface
+
+    def set_neighbors(self, entries: Iterable[tuple[int, float, float, float]]) -> None:
+        """Replace this step's neighbors: (robot id, distance, azimuth, elevation) each,
+        distance in metres, angles in radians (azimuth from north, positive toward east)."""
+        self.neighbors.set(list(entries))
+
+    def receive(self, sender_id: int, payload: bytes) -> None:
+        """Queue one Buzz message received from robot `sender_id`; see `process_inbox`."""
+        self.net.receive(sender_id, payload)
+
+    def process_inbox(self) -> None:
+        """Apply the received messages (listeners run now). A payload that does not decode
+        is counted in `vm.net.stats` and skipped; a listener's error is a BuzzError."""
+        self._require_program()
+        if self.state == "done":
+            self.state = "ready"
+        self._run(self.net.process_inbox)
+
+    def drain_outbox(self, budget_bytes: int | None = None, overhead: int = 0) -> list[bytes]:
+        """The serialized messages to send this step, in the reference's order.
+
+        Call once per step, after `step()`. Each message costs its length plus `overhead`
+        bytes of `budget_bytes`; what does not fit stays queued for the next step.
+        """
+        return self.net.drain(budget_bytes, overhead)
 
     # ------------------------------------------------------------ running
 

@@ -31,9 +31,7 @@ SCRIPTS = sorted(CONFORMANCE.glob("*.bzz"))
 
 # Scripts for parts of the library that a later issue delivers: they must fail until then
 # (strict: the day they pass, this list must shrink).
-PENDING = {
-    "lib_cclosure_ids_swarm": "neighbors, stigmergy and swarm natives arrive with issue 3",
-}
+PENDING: dict[str, str] = {}
 
 
 def _param(script: Path) -> object:

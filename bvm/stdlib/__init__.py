@@ -10,8 +10,9 @@ handed out in registration order and show up when a closure is printed (`[c-clos
 so the host's first own native (bzzrun's `log`) gets id 65.
 
 The VM interface used: `vm.new_native(impl, arity, name)`, `vm.call_closure(c, *args)`,
-`vm.globals`, `vm.robot_id`, `vm.rng_seed`, `vm.reserve_native_ids(n)`; `install` sets
-`vm.rng` (the `MersenneTwister` behind `math.rng`).
+`vm.globals`, `vm.robot_id`, `vm.rng_seed`, and the swarm primitives' state objects
+`vm.neighbors`, `vm.stigmergies`, `vm.swarms` (bvm/stdlib/neighbors.py, stigmergy.py,
+swarm.py); `install` sets `vm.rng` (the `MersenneTwister` behind `math.rng`).
 """
 
 from __future__ import annotations
@@ -25,15 +26,12 @@ __all__ = ["install"]
 
 def install(vm: Any) -> None:
     """Register the standard library into `vm.globals`, in the reference order (spec §8.1)."""
-    # neighbors (get filter kin nonkin foreach map reduce count broadcast listen ignore,
-    # ids 0-10) belongs to the swarm-primitives work (a later issue): keep its ids free.
-    vm.reserve_native_ids(11)
+    vm.neighbors.register()  # get filter kin nonkin foreach map reduce count
+    # broadcast listen ignore, ids 0-10
     vm.globals["id"] = vm.robot_id
     base.register(vm)  # type ... isuserdata, ids 11-26
-    # stigmergy.create (id 27) and swarm.create union intersection difference id (28-32)
-    # also belong to the swarm-primitives work: keep their ids free.
-    vm.reserve_native_ids(1)
-    vm.reserve_native_ids(5)
+    vm.stigmergies.register()  # stigmergy.create, id 27
+    vm.swarms.register()  # swarm.create union intersection difference id, ids 28-32
     mathlib.register(vm)  # math 33-49, math.rng 50-53 (creates vm.rng)
     iolib.register(vm)  # io 54-58
     stringlib.register(vm)  # string 59-64

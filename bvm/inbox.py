@@ -1,0 +1,59 @@
+"""The incoming message queue of one robot (spec buzz-wire-formats.md §4).
+
+The reference keeps received payloads in a 20-bucket map keyed by sender id and drains it
+sender by sender: buckets in order (`id % 20`), senders of one bucket in the order they
+first arrived, and each sender's payloads newest first. fieldkit keeps that order, because
+it decides the order listeners run in and the order gossip is re-sent in.
+
+Unlike the reference, the queue is bounded: a flood of messages between two steps cannot
+exhaust a robot's memory. Past the cap new payloads are dropped and counted.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+from collections.abc import Iterator
+
+_log = logging.getLogger("bvm.net")
+
+#: Payloads held at most between two steps.
+MAX_PENDING = 10_000
+
+#: The reference's bucket count: it fixes the order senders are processed in.
+BUCKETS = 20
+
+
+class Inbox:
+    """Received payloads waiting for the next step, per sender."""
+
+    def __init__(self, stats: collections.Counter[str], max_pending: int = MAX_PENDING) -> None:
+        self.stats = stats
+        self.max_pending = max_pending
+        self._by_sender: dict[int, list[bytes]] = {}
+        self._count = 0
+
+    def __len__(self) -> int:
+        """The number of pending payloads."""
+        return self._count
+
+    def append(self, sender: int, payload: bytes) -> bool:
+        """Queue one payload from robot `sender`; False if the queue is full (dropped)."""
+        if self._count >= self.max_pending:
+            self.stats["inbox_overflow"] += 1
+            if self.stats["inbox_overflow"] == 1:
+                _log.warning("in-queue full (%d payloads): dropping", self.max_pending)
+            return False
+        self._by_sender.setdefault(sender, []).append(payload)
+        self._count += 1
+        return True
+
+    def drain(self) -> Iterator[tuple[int, bytes]]:
+        """Yield and remove every pending (sender, payload), in the reference's order."""
+        senders = sorted(self._by_sender, key=lambda s: s % BUCKETS)  # stable: arrival order
+        by_sender = self._by_sender
+        self._by_sender = {}
+        self._count = 0
+        for sender in senders:
+            for payload in reversed(by_sender[sender]):
+                yield sender, payload

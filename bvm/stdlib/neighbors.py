@@ -1,0 +1,185 @@
+"""The `neighbors` table (spec language §8.6, wire §6): situated communication.
+
+The host replaces `neighbors.poses` every step with the robots it currently hears, as
+robot id -> {distance, azimuth, elevation}. Methods (self = the table they are called on):
+get count foreach map reduce filter kin nonkin, and on the global table only, broadcast
+listen ignore. map/filter/kin/nonkin return new neighbors-like tables with their own
+`poses` and the eight query methods.
+
+Deliberate difference from the reference (docs/compat.md): the reference registers eight
+fresh C functions for every derived table, so a script calling `neighbors.map` each step
+grows the VM's function list forever. fieldkit makes those eight closures once, on first
+use (so they get the ids the reference gives the first ones) and binds copies to each table.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from bvm.stdlib.base import expected
+from bvm.values import Closure, Table, f32
+
+_Vm = Any
+
+POSES = "poses"
+
+
+class Neighbors:
+    """The neighbors state of one VM: topic listeners and the derived-table methods."""
+
+    def __init__(self, vm: _Vm) -> None:
+        self.vm = vm
+        self.listeners: dict[str, Closure] = {}
+        self.table = Table()  # the global `neighbors`
+        self._derived_methods: list[tuple[str, Closure]] | None = None
+
+    # ------------------------------------------------------------ host side
+
+    def set(self, entries: list[tuple[int, float, float, float]]) -> None:
+        """Replace this step's neighbors: (robot id, distance, azimuth, elevation) each."""
+        poses = Table()
+        for rid, distance, azimuth, elevation in entries:
+            if rid.__class__ is not int and not isinstance(rid, int):
+                raise TypeError(f"neighbor id must be an int, got {type(rid).__name__}")
+            if not 0 <= rid <= 0xFFFF:
+                raise ValueError(f"neighbor id {rid} is outside 0..65535")
+            poses[int(rid)] = Table(
+                distance=f32(float(distance)),
+                azimuth=f32(float(azimuth)),
+                elevation=f32(float(elevation)),
+            )
+        self.table[POSES] = poses
+
+    # ------------------------------------------------------------ script side
+
+    def _derived(self, poses: Table) -> Table:
+        """A neighbors-like table over `poses`, with the eight query methods."""
+        if self._derived_methods is None:
+            self._derived_methods = [
+                (name, self.vm.new_native(impl, arity, f"neighbors.{name}"))
+                for name, impl, arity in self._query_methods()
+            ]
+        t = Table()
+        for name, closure in self._derived_methods:
+            t[name] = closure.rebind(t)
+        t[POSES] = poses
+        return t
+
+    def _query_methods(self) -> list[tuple[str, Any, int]]:
+        """(name, implementation, arity) of get filter kin nonkin foreach map reduce count."""
+        vm = self.vm
+        failed = vm.call_failed
+
+        def poses_of(t: Any) -> Table:
+            p = t[POSES] if t.__class__ is Table else None
+            return p if p.__class__ is Table else Table()
+
+        # Each runs a Buzz closure per neighbor: `f.fn(f, ...)` inline, one Python call per
+        # entry, with wrong argument counts and non-closures left to `vm.call_failed`.
+        def n_get(t: Any, rid: Any) -> Any:
+            return poses_of(t)[rid]
+
+        def n_count(t: Any) -> int:
+            return len(poses_of(t))
+
+        def n_foreach(t: Any, f: Any) -> None:
+            for rid, data in list(poses_of(t).items()):
+                try:
+                    f.fn(f, rid, data)
+                except (TypeError, AttributeError) as e:
+                    failed(e, f, (rid, data))
+
+        def n_map(t: Any, f: Any) -> Table:
+            out = Table()
+            for rid, data in list(poses_of(t).items()):
+                try:
+                    r = f.fn(f, rid, data)
+                except (TypeError, AttributeError) as e:
+                    r = failed(e, f, (rid, data))
+                if r is not None:
+                    out[rid] = r
+            return self._derived(out)
+
+        def n_reduce(t: Any, f: Any, acc: Any) -> Any:
+            for rid, data in list(poses_of(t).items()):
+                try:
+                    acc = f.fn(f, rid, data, acc)
+                except (TypeError, AttributeError) as e:
+                    acc = failed(e, f, (rid, data, acc))
+            return acc
+
+        def n_filter(t: Any, f: Any) -> Table:
+            out = Table()
+            for rid, data in list(poses_of(t).items()):
+                try:
+                    r = f.fn(f, rid, data)
+                except (TypeError, AttributeError) as e:
+                    r = failed(e, f, (rid, data))
+                if r is not None and (r.__class__ is not int or r != 0):
+                    out[rid] = data
+            return self._derived(out)
+
+        def n_kin(t: Any) -> Table:
+            swarm = vm.swarms.current()
+            poses = poses_of(t)
+            if swarm is None:
+                return self._derived(Table(poses))
+            member = vm.swarms.peer_in
+            return self._derived(Table((r, d) for r, d in poses.items() if member(r, swarm)))
+
+        def n_nonkin(t: Any) -> Table:
+            swarm = vm.swarms.current()
+            if swarm is None:
+                return self._derived(Table())
+            member = vm.swarms.peer_in
+            poses = poses_of(t)
+            return self._derived(Table((r, d) for r, d in poses.items() if not member(r, swarm)))
+
+        return [
+            ("get", n_get, 1),
+            ("filter", n_filter, 1),
+            ("kin", n_kin, 0),
+            ("nonkin", n_nonkin, 0),
+            ("foreach", n_foreach, 1),
+            ("map", n_map, 1),
+            ("reduce", n_reduce, 2),
+            ("count", n_count, 0),
+        ]
+
+    def register(self) -> None:
+        """Create the global `neighbors` table (C-function ids 0-10, spec §8.1)."""
+        vm = self.vm
+
+        def n_broadcast(_t: Any, topic: Any, value: Any) -> None:
+            if topic.__class__ is not str:
+                raise expected("string", topic)
+            vm.net.broadcast(topic, value)
+
+        def n_listen(_t: Any, topic: Any, f: Any) -> None:
+            if topic.__class__ is not str:
+                raise expected("string", topic)
+            if f.__class__ is not Closure:
+                raise expected("closure", f)
+            self.listeners[topic] = f
+
+        def n_ignore(_t: Any, topic: Any) -> None:
+            if topic.__class__ is not str:
+                raise expected("string", topic)
+            self.listeners.pop(topic, None)
+
+        t = self.table
+        for name, impl, arity in [
+            *self._query_methods(),
+            ("broadcast", n_broadcast, 2),
+            ("listen", n_listen, 2),
+            ("ignore", n_ignore, 1),
+        ]:
+            t[name] = vm.new_native(impl, arity, f"neighbors.{name}").rebind(t)
+        vm.globals["neighbors"] = t
+
+    def deliver(self, topic: str, value: Any, sender: int) -> None:
+        """A received BROADCAST: call the topic's listener as f(topic, value, sender id)."""
+        f = self.listeners.get(topic)
+        if f is None:
+            return
+        self.vm.invoke(f, (topic, value, sender))
