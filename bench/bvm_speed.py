@@ -27,6 +27,7 @@ class Case:
     name: str
     buzz: str
     python: Callable[[], object]
+    setup: Callable[[bvm.VM], None] | None = None  # host state before `run()`
 
 
 FIB = """
@@ -197,12 +198,81 @@ def py_vectors() -> float:
     return math.sqrt(x * x + y * y)
 
 
+NEIGHBORS_STEP = """
+v = stigmergy.create(1)
+function run() {
+  var k = 0
+  var total = 0.0
+  while (k < 20) {
+    var close = neighbors.filter(function(rid, d) { return d.distance < 30.0 })
+    var vec = close.map(function(rid, d) {
+      return {.x = d.distance * math.cos(d.azimuth), .y = d.distance * math.sin(d.azimuth)}
+    })
+    var acc = vec.reduce(function(rid, p, a) {
+      a.x = a.x + p.x
+      a.y = a.y + p.y
+      return a
+    }, {.x = 0.0, .y = 0.0})
+    v.put(id, acc.x)
+    var seen = v.get(k % 50)
+    total = total + acc.x + acc.y
+    k = k + 1
+  }
+  return total
+}
+"""
+
+# 50 neighbors around the robot, the host's feed of `neighbors` for the step.
+FIFTY = [(i + 1, 1.0 + i, (i * 0.7) % 6.283, 0.0) for i in range(50)]
+
+
+def py_neighbors_step() -> float:
+    # The twin keeps the program's shape: neighbors as a dict of dicts, library functions
+    # calling a closure per neighbor, and a versioned shared table whose writes and reads
+    # are queued for the radio (as tuples: the twin does not serialize).
+    poses = {rid: {"distance": d, "azimuth": a, "elevation": e} for rid, d, a, e in FIFTY}
+    store: dict[int, list] = {}
+    queue: list[tuple] = []
+    total = 0.0
+    for k in range(20):
+        close = _tfilter(poses, lambda rid, d: d["distance"] < 30.0)
+        vec = _tmap(
+            close,
+            lambda rid, d: {
+                "x": d["distance"] * math.cos(d["azimuth"]),
+                "y": d["distance"] * math.sin(d["azimuth"]),
+            },
+        )
+
+        def add(rid: int, p: dict, a: dict) -> dict:
+            a["x"] = a["x"] + p["x"]
+            a["y"] = a["y"] + p["y"]
+            return a
+
+        acc = _treduce(vec, add, {"x": 0.0, "y": 0.0})
+        entry = store.get(0)
+        if entry is None:
+            entry = store[0] = [acc["x"], 0, 0]
+        entry[0], entry[1] = acc["x"], entry[1] + 1
+        queue.append(("put", 0, tuple(entry)))
+        seen = store.get(k % 50)
+        queue.append(("query", k % 50, seen))
+        total = total + acc["x"] + acc["y"]
+    return total
+
+
 CASES = [
     Case("recursion: fib(24)", FIB, py_fib),
     Case("table loop: 20,000 puts + gets", TABLE_LOOP, py_table_loop),
     Case("closures: map/filter/reduce", MAP_REDUCE, py_map_reduce),
     Case("strings: build and scan", STRINGS, py_strings),
     Case("vector math: float32 integration", VECTORS, py_vectors),
+    Case(
+        "neighbors step: 50 nbrs, map/reduce, vstig",
+        NEIGHBORS_STEP,
+        py_neighbors_step,
+        lambda vm: vm.set_neighbors(FIFTY),
+    ),
 ]
 
 
@@ -220,6 +290,8 @@ def measure(case: Case, repeat: int) -> tuple[float, float]:
     """(bvm seconds, Python seconds) for one case."""
     vm = bvm.VM(robot_id=0, rng_seed=1)
     vm.load(bvm.compile_source(case.buzz, f"<bench {case.name}>"))
+    if case.setup is not None:
+        case.setup(vm)
     vm.execute()
     vm.call("run")  # warm-up: translation happens on the first call
     case.python()
