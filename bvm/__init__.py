@@ -7,8 +7,15 @@
     vm.register("log", print)
     vm.execute()
 
-This package does no device I/O (beyond the `io` library scripts may call); robots,
-radios and simulators live in `fieldkit`.
+    # each step, as a robot does (docs/swarm.md):
+    vm.receive(sender_id, payload); vm.process_inbox()
+    vm.set_neighbors([(robot_id, distance, azimuth, elevation), ...])
+    vm.call("step")
+    radio.send(vm.drain_outbox(budget_bytes=186))
+
+`bvm.wire` encodes and decodes the messages robots exchange. This package does no device
+I/O (beyond the `io` library scripts may call); robots, radios and simulators live in
+`fieldkit`.
 """
 
 from __future__ import annotations
@@ -16,6 +23,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+from bvm import wire
 from bvm.errors import BuzzAsmError, BuzzBudgetExceeded, BuzzCompileError, BuzzError, BuzzLoadError
 from bvm.program import Program
 from bvm.values import Closure, Table, Userdata
@@ -36,6 +44,7 @@ __all__ = [
     "compile_file",
     "compile_source",
     "compile_to_asm",
+    "wire",
 ]
 
 
