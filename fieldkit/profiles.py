@@ -1,0 +1,728 @@
+"""Device profiles: what a robot model can do and how to reach it, from one TOML file each.
+
+The simulator reads a profile's kinematics and battery; the field node will read the rest
+(autopilot link, radio, failsafes, geofence, robot id). Shipped profiles live in the
+repository's `device_profiles/` directory:
+
+    load_profile("solo")                      # device_profiles/solo.toml
+    load_profile("site/my_husky.toml")        # any explicit path
+    list_profiles()                           # ["husky", "m100", "solo", "spiri"]
+
+Every problem in a file is a `ProfileError` naming the file, the dotted field and what is
+wrong, for example `device_profiles/solo.toml: kinematics.max_speed_mps: must be > 0, got -1`.
+All problems of a file are reported at once, one per line, so a field engineer fixes them
+in one pass.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Literal
+
+PROFILE_DIR = Path(__file__).resolve().parent.parent / "device_profiles"
+"""Where bare profile names are looked up: the repository's `device_profiles/`."""
+
+VehicleKind = Literal["uav", "ground"]
+"""`vehicle`: a UAV flies; a ground robot stays at z = 0."""
+Flavour = Literal["ardupilot", "px4", "dji"]
+"""`autopilot.flavour`: which autopilot family speaks on `autopilot.url`."""
+FailsafeAction = Literal["hold", "land", "rtl", "stop"]
+"""A `failsafe.on_*` action (see `Failsafe`)."""
+RadioKind = Literal["xbee", "udp"]
+"""`radio.kind`: an XBee mesh on a serial port, or UDP broadcast (WiFi)."""
+IdSource = Literal["config", "hostname", "xbee"]
+"""`robot_id.source`: a fixed value, the hostname's trailing digits, or the XBee serial."""
+
+VEHICLES: tuple[str, ...] = ("uav", "ground")
+"""Allowed values of `vehicle`."""
+FLAVOURS: tuple[str, ...] = ("ardupilot", "px4", "dji")
+"""Allowed values of `autopilot.flavour`."""
+FAILSAFE_ACTIONS: tuple[str, ...] = ("hold", "land", "rtl", "stop")
+"""Allowed failsafe actions for a UAV."""
+GROUND_FAILSAFE_ACTIONS: tuple[str, ...] = ("stop", "hold")
+"""Allowed failsafe actions for a ground robot (it cannot land or fly home)."""
+RADIO_KINDS: tuple[str, ...] = ("xbee", "udp")
+"""Allowed values of `radio.kind`."""
+ID_SOURCES: tuple[str, ...] = ("config", "hostname", "xbee")
+"""Allowed values of `robot_id.source`."""
+MAX_ROBOT_ID = 255
+"""Largest robot id: ROSBuzz, XbeeMav and MAVLink sysid all hold it in 8 bits (spec wire §0)."""
+
+# Mode names per flavour, as pymavlink's mode mappings spell them (DJI: the names our DJI
+# adapter maps onto Onboard SDK control authority and flight tasks). Ground robots run an
+# ArduPilot-Rover-like link, which has HOLD where a copter has LOITER and no LAND at all.
+_DEFAULT_MODES: dict[tuple[str, str], tuple[str, str, str, str]] = {
+    ("ardupilot", "uav"): ("GUIDED", "LOITER", "LAND", "RTL"),
+    ("px4", "uav"): ("OFFBOARD", "LOITER", "LAND", "RTL"),
+    ("dji", "uav"): ("SDK_CONTROL", "HOVER", "LANDING", "GO_HOME"),
+    ("ardupilot", "ground"): ("GUIDED", "HOLD", "HOLD", "RTL"),
+    ("px4", "ground"): ("OFFBOARD", "LOITER", "LOITER", "RTL"),
+    ("dji", "ground"): ("SDK_CONTROL", "HOVER", "HOVER", "GO_HOME"),
+}
+
+
+class ProfileError(ValueError):
+    """A device profile that cannot be used; the message says where and why, one line each."""
+
+    def __init__(self, problems: list[str]) -> None:
+        """Wrap one or more `file: field: problem` lines."""
+        super().__init__("\n".join(problems))
+        self.problems: tuple[str, ...] = tuple(problems)
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """Motion limits. Ground robots have no vertical motion: the vertical fields are 0."""
+
+    max_speed_mps: float  # horizontal
+    max_accel_mps2: float  # applied to horizontal and vertical motion separately
+    max_climb_mps: float
+    max_descent_mps: float
+    takeoff_altitude_m: float
+    hover_accuracy_m: float  # how close to a target counts as "there"
+
+
+@dataclass(frozen=True)
+class Autopilot:
+    """How to reach the flight controller and which modes to select."""
+
+    flavour: Flavour
+    url: str  # pymavlink connection string: "/dev/ttyUSB0", "udpin:0.0.0.0:14550", ...
+    baud: int
+    guided_mode: str
+    loiter_mode: str
+    land_mode: str
+    rtl_mode: str
+    heartbeat_timeout_s: float
+    gps_fix_timeout_s: float
+
+
+@dataclass(frozen=True)
+class Node:
+    """The field node's own settings."""
+
+    loop_rate_hz: float = 10.0
+
+
+@dataclass(frozen=True)
+class Geofence:
+    """Where the robot may go: a lat/lon polygon (empty = no polygon) and an altitude ceiling."""
+
+    polygon: tuple[tuple[float, float], ...]
+    max_altitude_m: float
+
+
+@dataclass(frozen=True)
+class Failsafe:
+    """What the host does, without asking the script, when something goes wrong.
+
+    Actions: "hold" brakes and keeps position; "land" lands where it is; "rtl" returns to
+    launch and lands; "stop" stops the script and brakes to a standstill (a UAV in the air
+    then hovers: nothing is ever disarmed in the air).
+    """
+
+    on_heartbeat_loss: FailsafeAction
+    on_low_battery: FailsafeAction
+    on_script_error: FailsafeAction
+    low_battery_percent: float
+
+
+@dataclass(frozen=True)
+class Battery:
+    """Linear drain model: voltage falls from full to empty over `endurance_s` of use."""
+
+    full_voltage: float
+    empty_voltage: float
+    endurance_s: float  # hover time (UAV) or drive time (ground) from a full charge
+    capacity_wh: float | None = None
+
+
+@dataclass(frozen=True)
+class Radio:
+    """The inter-robot radio."""
+
+    kind: RadioKind
+    port: str  # serial device of the XBee; unused for UDP
+    baud: int
+    api_mode: int  # XBee API mode 1, or 2 (escaped)
+    udp_port: int
+    per_step_budget_bytes: int  # Buzz bytes sent per step, as ROSBuzz (spec rosbuzz §4)
+    # XBee 64-bit serial (16 upper-case hex digits) -> robot id, like XbeeMav's database.xml.
+    id_map: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}), hash=False)
+
+
+@dataclass(frozen=True)
+class RobotId:
+    """Where the robot's id comes from: a fixed value, the hostname's digits, or the XBee.
+
+    "hostname" takes the digits at the end of the host name ("solo3" -> 3); "xbee" looks
+    the radio's 64-bit serial up in `Radio.id_map`, as XbeeMav does with its database.
+    """
+
+    source: IdSource
+    value: int | None = None  # only with source = "config"
+
+
+@dataclass(frozen=True)
+class Profile:
+    """One robot model's complete device profile."""
+
+    name: str
+    vehicle: VehicleKind
+    kinematics: Kinematics
+    autopilot: Autopilot
+    node: Node
+    geofence: Geofence
+    failsafe: Failsafe
+    battery: Battery
+    radio: Radio
+    robot_id: RobotId
+    description: str = ""
+    path: Path | None = None  # the file it was loaded from
+
+    @property
+    def is_ground(self) -> bool:
+        """Whether this is a ground robot (no takeoff, no altitude)."""
+        return self.vehicle == "ground"
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def list_profiles(directory: Path | None = None) -> list[str]:
+    """Names of the shipped profiles (or of the `*.toml` files in `directory`), sorted."""
+    d = PROFILE_DIR if directory is None else directory
+    return sorted(p.stem for p in d.glob("*.toml"))
+
+
+def load_profile(name_or_path: str | Path) -> Profile:
+    """Load and validate a profile: a bare name like "solo" or a path to a TOML file."""
+    path = _resolve(name_or_path)
+    shown = _display(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise ProfileError([f"{shown}: cannot read: {e.strerror or e}"]) from e
+    except UnicodeDecodeError as e:
+        raise ProfileError([f"{shown}: not UTF-8 text: {e.reason} at byte {e.start}"]) from e
+    except tomllib.TOMLDecodeError as e:
+        # tomllib's message already carries "(at line L, column C)".
+        raise ProfileError([f"{shown}: invalid TOML: {e}"]) from e
+    return parse_profile(data, source=shown, path=path)
+
+
+def _resolve(name_or_path: str | Path) -> Path:
+    """The file a profile argument designates."""
+    if isinstance(name_or_path, Path):
+        return name_or_path
+    s = name_or_path
+    looks_like_path = s.endswith(".toml") or "/" in s or "\\" in s
+    if looks_like_path:
+        return Path(s)
+    if not s or not all(c.isalnum() or c in "_-" for c in s):
+        raise ProfileError([f"{s!r}: not a profile name or a .toml path"])
+    path = PROFILE_DIR / f"{s}.toml"
+    if not path.is_file():
+        known = ", ".join(list_profiles()) or "none"
+        raise ProfileError([f"{s}: unknown profile (known: {known}); or give a .toml path"])
+    return path
+
+
+def _display(path: Path) -> str:
+    """How a file is named in messages: shipped profiles relative to the repository."""
+    try:
+        return str(path.resolve().relative_to(PROFILE_DIR.parent))
+    except ValueError:
+        return str(path)
+
+
+# --------------------------------------------------------------------------- validation
+
+_MISSING: Any = object()
+
+
+class _Checker:
+    """Collects `source: field: problem` lines while reading one profile."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+        self.problems: list[str] = []
+
+    def fail(self, where: str, problem: str) -> None:
+        """Record one problem."""
+        self.problems.append(f"{self.source}: {where}: {problem}")
+
+    def table(
+        self, data: Mapping[str, Any], key: str, allowed: tuple[str, ...], required: bool
+    ) -> dict[str, Any] | None:
+        """The sub-table `key`, checked for unknown fields; None when absent or not a table."""
+        if key not in data:
+            if required:
+                self.fail(key, "missing required table")
+                return None
+            return {}
+        t = data[key]
+        if not isinstance(t, dict):
+            self.fail(key, f"must be a table, got {_describe(t)}")
+            return None
+        self.unknown(t, allowed, prefix=f"{key}.")
+        return t
+
+    def unknown(self, t: Mapping[str, Any], allowed: tuple[str, ...], prefix: str = "") -> None:
+        """Report every key of `t` that is not in `allowed`."""
+        for k in t:
+            if k not in allowed:
+                self.fail(f"{prefix}{k}", "unknown field")
+
+    def get(
+        self,
+        t: Mapping[str, Any] | None,
+        where: str,
+        kind: Callable[[_Checker, str, Any], Any],
+        default: Any = _MISSING,
+    ) -> Any:
+        """Field `where` (dotted) of table `t`, converted by `kind`; None if it is unusable."""
+        if t is None:
+            return None
+        key = where.rsplit(".", 1)[-1]
+        if key not in t:
+            if default is _MISSING:
+                self.fail(where, "missing required field")
+                return None
+            return default
+        return kind(self, where, t[key])
+
+
+def _describe(v: Any) -> str:
+    """A value's TOML type and value, for messages."""
+    names = {bool: "boolean", int: "integer", float: "float", str: "string"}
+    name = names.get(type(v))
+    if name is not None:
+        return f"{name} {str(v).lower() if isinstance(v, bool) else repr(v)}"
+    if isinstance(v, list):
+        return "an array"
+    if isinstance(v, dict):
+        return "a table"
+    return type(v).__name__  # dates and times
+
+
+def _float(c: _Checker, where: str, v: Any) -> float | None:
+    """A finite number; TOML integers are accepted where a float is expected."""
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        c.fail(where, f"must be a number, got {_describe(v)}")
+        return None
+    f = float(v)
+    if not math.isfinite(f):
+        c.fail(where, f"must be finite, got {v}")
+        return None
+    return f
+
+
+def _int(c: _Checker, where: str, v: Any) -> int | None:
+    """An integer (a float such as 10.0 is refused: counts and ports are whole numbers)."""
+    if isinstance(v, bool) or not isinstance(v, int):
+        c.fail(where, f"must be an integer, got {_describe(v)}")
+        return None
+    return v
+
+
+def _str(c: _Checker, where: str, v: Any) -> str | None:
+    """A string."""
+    if not isinstance(v, str):
+        c.fail(where, f"must be a string, got {_describe(v)}")
+        return None
+    return v
+
+
+def _nonempty(c: _Checker, where: str, v: Any) -> str | None:
+    """A string with something in it."""
+    s = _str(c, where, v)
+    if s is not None and not s.strip():
+        c.fail(where, "must not be empty")
+        return None
+    return s
+
+
+def _choice(options: tuple[str, ...]) -> Callable[[_Checker, str, Any], str | None]:
+    """A string among `options`."""
+
+    def check(c: _Checker, where: str, v: Any) -> str | None:
+        s = _str(c, where, v)
+        if s is not None and s not in options:
+            listed = ", ".join(f'"{o}"' for o in options)
+            c.fail(where, f"must be one of {listed}, got {s!r}")
+            return None
+        return s
+
+    return check
+
+
+def _num(
+    g: float | None = None, ge: float | None = None, lt: float | None = None
+) -> Callable[[_Checker, str, Any], float | None]:
+    """A finite number with bounds: > g, >= ge, < lt."""
+
+    def check(c: _Checker, where: str, v: Any) -> float | None:
+        f = _float(c, where, v)
+        if f is None:
+            return None
+        if g is not None and not f > g:
+            c.fail(where, f"must be > {_fmt(g)}, got {_fmt(v)}")
+            return None
+        if ge is not None and not f >= ge:
+            c.fail(where, f"must be >= {_fmt(ge)}, got {_fmt(v)}")
+            return None
+        if lt is not None and not f < lt:
+            c.fail(where, f"must be < {_fmt(lt)}, got {_fmt(v)}")
+            return None
+        return f
+
+    return check
+
+
+def _whole(lo: int, hi: int) -> Callable[[_Checker, str, Any], int | None]:
+    """An integer in [lo, hi]."""
+
+    def check(c: _Checker, where: str, v: Any) -> int | None:
+        i = _int(c, where, v)
+        if i is not None and not lo <= i <= hi:
+            c.fail(where, f"must be in {lo}..{hi}, got {i}")
+            return None
+        return i
+
+    return check
+
+
+def _fmt(v: float | int) -> str:
+    """A number as a user wrote it: 5 rather than 5.0."""
+    if isinstance(v, float) and v.is_integer():
+        return str(int(v))
+    return str(v)
+
+
+_TOP = (
+    "name",
+    "vehicle",
+    "description",
+    "kinematics",
+    "autopilot",
+    "node",
+    "geofence",
+    "failsafe",
+    "battery",
+    "radio",
+    "robot_id",
+)
+_KINEMATICS = (
+    "max_speed_mps",
+    "max_accel_mps2",
+    "max_climb_mps",
+    "max_descent_mps",
+    "takeoff_altitude_m",
+    "hover_accuracy_m",
+)
+_AUTOPILOT = (
+    "flavour",
+    "url",
+    "baud",
+    "guided_mode",
+    "loiter_mode",
+    "land_mode",
+    "rtl_mode",
+    "heartbeat_timeout_s",
+    "gps_fix_timeout_s",
+)
+_MODES = ("guided_mode", "loiter_mode", "land_mode", "rtl_mode")
+_NODE = ("loop_rate_hz",)
+_GEOFENCE = ("polygon", "max_altitude_m")
+_FAILSAFE = ("on_heartbeat_loss", "on_low_battery", "on_script_error", "low_battery_percent")
+_BATTERY = ("full_voltage", "empty_voltage", "endurance_s", "capacity_wh")
+_RADIO = ("kind", "port", "baud", "api_mode", "udp_port", "per_step_budget_bytes", "id_map")
+_ROBOT_ID = ("source", "value")
+
+_POSITIVE = _num(g=0.0)
+_PORT = _whole(1, 65535)
+
+
+def parse_profile(data: Mapping[str, Any], source: str, path: Path | None = None) -> Profile:
+    """Validate an already-parsed TOML document; `source` names it in error messages."""
+    c = _Checker(source)
+    c.unknown(data, _TOP)
+    name = c.get(data, "name", _nonempty)
+    vehicle = c.get(data, "vehicle", _choice(VEHICLES))
+    description = c.get(data, "description", _str, "")
+    ground = vehicle == "ground"
+
+    kinematics = _kinematics(c, c.table(data, "kinematics", _KINEMATICS, True), vehicle)
+    autopilot = _autopilot(c, c.table(data, "autopilot", _AUTOPILOT, True), vehicle)
+    t = c.table(data, "node", _NODE, False)
+    node = Node(c.get(t, "node.loop_rate_hz", _POSITIVE, 10.0)) if t is not None else None
+    geofence = _geofence(c, c.table(data, "geofence", _GEOFENCE, not ground), vehicle, kinematics)
+    failsafe = _failsafe(c, c.table(data, "failsafe", _FAILSAFE, False), vehicle)
+    battery = _battery(c, c.table(data, "battery", _BATTERY, True))
+    radio = _radio(c, c.table(data, "radio", _RADIO, True))
+    robot_id = _robot_id(c, c.table(data, "robot_id", _ROBOT_ID, False), radio)
+
+    if c.problems:
+        raise ProfileError(c.problems)
+    return Profile(
+        name=name,
+        vehicle=vehicle,
+        kinematics=kinematics,
+        autopilot=autopilot,
+        node=node,
+        geofence=geofence,
+        failsafe=failsafe,
+        battery=battery,
+        radio=radio,
+        robot_id=robot_id,
+        description=description,
+        path=path,
+    )
+
+
+def _kinematics(c: _Checker, t: dict[str, Any] | None, vehicle: str | None) -> Kinematics | None:
+    """[kinematics]: every value positive, except the vertical ones of a ground robot (0)."""
+    if t is None:
+        return None
+    speed = c.get(t, "kinematics.max_speed_mps", _POSITIVE)
+    accel = c.get(t, "kinematics.max_accel_mps2", _POSITIVE)
+    accuracy = c.get(t, "kinematics.hover_accuracy_m", _POSITIVE)
+    vertical = ("max_climb_mps", "max_descent_mps", "takeoff_altitude_m")
+    values: dict[str, float | None] = {}
+    for key in vertical:
+        where = f"kinematics.{key}"
+        if vehicle == "ground":
+            # A copied UAV profile would otherwise carry a takeoff height into a Husky.
+            v = c.get(t, where, _float, 0.0)
+            if v is not None and v != 0.0:
+                c.fail(where, f"ground robots do not fly; use 0 or leave it out, got {_fmt(v)}")
+                v = None
+            values[key] = v
+        else:
+            values[key] = c.get(t, where, _POSITIVE)
+    if None in (speed, accel, accuracy, *values.values()):
+        return None
+    return Kinematics(
+        max_speed_mps=speed,
+        max_accel_mps2=accel,
+        max_climb_mps=values["max_climb_mps"],
+        max_descent_mps=values["max_descent_mps"],
+        takeoff_altitude_m=values["takeoff_altitude_m"],
+        hover_accuracy_m=accuracy,
+    )
+
+
+def _autopilot(c: _Checker, t: dict[str, Any] | None, vehicle: str | None) -> Autopilot | None:
+    """[autopilot]: flavour and link are required; mode names default per flavour."""
+    if t is None:
+        return None
+    flavour = c.get(t, "autopilot.flavour", _choice(FLAVOURS))
+    url = c.get(t, "autopilot.url", _nonempty)
+    baud = c.get(t, "autopilot.baud", _whole(1, 10_000_000), 57600)
+    defaults = _DEFAULT_MODES.get((flavour, vehicle or "uav"), (None,) * 4)
+    modes = [
+        c.get(t, f"autopilot.{key}", _nonempty, d) for key, d in zip(_MODES, defaults, strict=True)
+    ]
+    heartbeat = c.get(t, "autopilot.heartbeat_timeout_s", _POSITIVE, 3.0)
+    gps_fix = c.get(t, "autopilot.gps_fix_timeout_s", _POSITIVE, 120.0)
+    if None in (flavour, url, baud, heartbeat, gps_fix, *modes):
+        return None
+    return Autopilot(flavour, url, baud, *modes, heartbeat, gps_fix)
+
+
+def _geofence(
+    c: _Checker, t: dict[str, Any] | None, vehicle: str | None, kin: Kinematics | None
+) -> Geofence | None:
+    """[geofence]: a polygon of >= 3 [lat, lon] corners (or none) and the altitude ceiling."""
+    if t is None:
+        return None
+    polygon = _polygon(c, t.get("polygon", []))
+    if vehicle == "ground":
+        ceiling = c.get(t, "geofence.max_altitude_m", _float, 0.0)
+        if ceiling is not None and ceiling != 0.0:
+            c.fail(
+                "geofence.max_altitude_m",
+                f"ground robots do not fly; use 0 or leave it out, got {_fmt(ceiling)}",
+            )
+            ceiling = None
+    else:
+        # Required for UAVs: a ceiling is a safety limit, better stated than defaulted.
+        ceiling = c.get(t, "geofence.max_altitude_m", _POSITIVE)
+        if ceiling is not None and kin is not None and ceiling < kin.takeoff_altitude_m:
+            c.fail(
+                "geofence.max_altitude_m",
+                f"must be >= kinematics.takeoff_altitude_m ({_fmt(kin.takeoff_altitude_m)}), "
+                f"got {_fmt(ceiling)}",
+            )
+            ceiling = None
+    if polygon is None or ceiling is None:
+        return None
+    return Geofence(polygon, ceiling)
+
+
+def _polygon(c: _Checker, v: Any) -> tuple[tuple[float, float], ...] | None:
+    """A list of [lat, lon] pairs: empty, or at least 3 corners enclosing some area."""
+    where = "geofence.polygon"
+    if not isinstance(v, list):
+        c.fail(where, f"must be an array of [lat, lon] pairs, got {_describe(v)}")
+        return None
+    corners: list[tuple[float, float]] = []
+    ok = True
+    for i, pair in enumerate(v):
+        at = f"{where}[{i}]"
+        if not isinstance(pair, list) or len(pair) != 2:
+            c.fail(at, f"must be a [lat, lon] pair, got {_describe(pair)}")
+            ok = False
+            continue
+        lat = _float(c, f"{at}[0]", pair[0])
+        lon = _float(c, f"{at}[1]", pair[1])
+        if lat is not None and not -90.0 <= lat <= 90.0:
+            c.fail(f"{at}[0]", f"latitude must be in -90..90, got {_fmt(lat)}")
+            lat = None
+        if lon is not None and not -180.0 <= lon <= 180.0:
+            c.fail(f"{at}[1]", f"longitude must be in -180..180, got {_fmt(lon)}")
+            lon = None
+        if lat is None or lon is None:
+            ok = False
+            continue
+        corners.append((lat, lon))
+    if not ok:
+        return None
+    if 0 < len(corners) < 3:
+        c.fail(where, f"needs at least 3 corners (or none), got {len(corners)}")
+        return None
+    if corners:
+        # Shoelace in degrees: only its sign-free size matters, to catch collinear corners.
+        twice_area = sum(
+            a[1] * b[0] - b[1] * a[0]
+            for a, b in zip(corners, corners[1:] + corners[:1], strict=True)
+        )
+        if abs(twice_area) < 1e-14:
+            c.fail(where, "corners enclose no area")
+            return None
+    return tuple(corners)
+
+
+def _failsafe(c: _Checker, t: dict[str, Any] | None, vehicle: str | None) -> Failsafe | None:
+    """[failsafe]: one action per trigger; ground robots can only stop or hold."""
+    if t is None:
+        return None
+    ground = vehicle == "ground"
+    defaults = {
+        "on_heartbeat_loss": "stop" if ground else "land",
+        "on_low_battery": "stop" if ground else "rtl",
+        "on_script_error": "stop" if ground else "hold",
+    }
+    actions: dict[str, str | None] = {}
+    for key, default in defaults.items():
+        where = f"failsafe.{key}"
+        a = c.get(t, where, _choice(FAILSAFE_ACTIONS), default)
+        if ground and a is not None and a not in GROUND_FAILSAFE_ACTIONS:
+            c.fail(where, f'ground robots cannot "{a}"; use "stop" or "hold"')
+            a = None
+        actions[key] = a
+    low = c.get(t, "failsafe.low_battery_percent", _num(g=0.0, lt=100.0), 20.0)
+    if low is None or None in actions.values():
+        return None
+    return Failsafe(**actions, low_battery_percent=low)
+
+
+def _battery(c: _Checker, t: dict[str, Any] | None) -> Battery | None:
+    """[battery]: the linear drain model (full > empty > 0, endurance > 0)."""
+    if t is None:
+        return None
+    full = c.get(t, "battery.full_voltage", _POSITIVE)
+    empty = c.get(t, "battery.empty_voltage", _POSITIVE)
+    endurance = c.get(t, "battery.endurance_s", _POSITIVE)
+    capacity = c.get(t, "battery.capacity_wh", _POSITIVE, None)
+    if full is not None and empty is not None and not full > empty:
+        c.fail(
+            "battery.empty_voltage",
+            f"must be < battery.full_voltage ({_fmt(full)}), got {_fmt(empty)}",
+        )
+        return None
+    if None in (full, empty, endurance) or (capacity is None and "capacity_wh" in t):
+        return None
+    return Battery(full, empty, endurance, capacity)
+
+
+def _radio(c: _Checker, t: dict[str, Any] | None) -> Radio | None:
+    """[radio]: an XBee needs its serial port; id_map maps XBee serials to robot ids."""
+    if t is None:
+        return None
+    kind = c.get(t, "radio.kind", _choice(RADIO_KINDS))
+    port = c.get(t, "radio.port", _str, "")
+    if kind == "xbee" and port is not None and not port.strip():
+        c.fail("radio.port", 'required when kind is "xbee" (the XBee serial device)')
+        port = None
+    # 230400 is what the XBees are configured for in the field (spec rosbuzz §4).
+    baud = c.get(t, "radio.baud", _whole(1, 10_000_000), 230400)
+    api_mode = c.get(t, "radio.api_mode", _whole(1, 2), 2)
+    udp_port = c.get(t, "radio.udp_port", _PORT, 24580)
+    budget = c.get(t, "radio.per_step_budget_bytes", _whole(1, 1 << 20), 190)
+    id_map = _id_map(c, t.get("id_map", {}))
+    if None in (kind, port, baud, api_mode, udp_port, budget, id_map):
+        return None
+    return Radio(kind, port, baud, api_mode, udp_port, budget, id_map)
+
+
+def _id_map(c: _Checker, v: Any) -> Mapping[str, int] | None:
+    """radio.id_map: 16-hex-digit XBee serials -> distinct robot ids."""
+    where = "radio.id_map"
+    if not isinstance(v, dict):
+        c.fail(where, f"must be a table of serial = id, got {_describe(v)}")
+        return None
+    out: dict[str, int] = {}
+    owner: dict[int, str] = {}
+    ok = True
+    for serial, rid in v.items():
+        at = f"{where}.{serial}"
+        if len(serial) != 16 or not all(ch in "0123456789abcdefABCDEF" for ch in serial):
+            c.fail(at, "must be an XBee 64-bit serial (16 hex digits)")
+            ok = False
+            continue
+        i = _whole(0, MAX_ROBOT_ID)(c, at, rid)
+        if i is None:
+            ok = False
+            continue
+        key = serial.upper()
+        if key in out:
+            c.fail(at, "serial listed twice")
+            ok = False
+            continue
+        if i in owner:
+            c.fail(at, f"robot id {i} is already given to {owner[i]}")
+            ok = False
+            continue
+        out[key] = i
+        owner[i] = key
+    return MappingProxyType(out) if ok else None
+
+
+def _robot_id(c: _Checker, t: dict[str, Any] | None, radio: Radio | None) -> RobotId | None:
+    """[robot_id]: "config" needs a value; "xbee" needs an XBee radio with an id_map."""
+    if t is None:
+        return None
+    source = c.get(t, "robot_id.source", _choice(ID_SOURCES), "hostname")
+    if source == "config":
+        value = c.get(t, "robot_id.value", _whole(0, MAX_ROBOT_ID))
+        if value is None:
+            return None
+    else:
+        value = None
+        if "value" in t and source is not None:
+            c.fail("robot_id.value", f'only used with source = "config", not {source!r}')
+    if source == "xbee" and radio is not None:
+        if radio.kind != "xbee":
+            c.fail("robot_id.source", f'"xbee" needs radio.kind = "xbee", not {radio.kind!r}')
+        elif not radio.id_map:
+            c.fail("robot_id.source", '"xbee" needs radio.id_map to list the XBee serials')
+    if source is None:
+        return None
+    return RobotId(source, value)
