@@ -28,6 +28,23 @@ _log = logging.getLogger("bvm.net")
 
 _Vm = Any
 
+# Decoded messages holding no table or closure are immutable, so robots that receive the
+# same bytes (a broadcast heard by every neighbour, in the simulator or on a shared host)
+# can share one decoding. Bounded: cleared when full.
+_shared: dict[bytes, wire.Message] = {}
+_SHARED_MAX = 8192
+_SCALARS = (int, float, str, type(None))
+
+
+def _immutable(msg: wire.Message) -> bool:
+    """Whether a decoded message holds only immutable values (no table, no closure)."""
+    kind = msg.type
+    if kind == wire.MsgType.BROADCAST:
+        return msg.value.__class__ in _SCALARS  # type: ignore[attr-defined]
+    if kind in (wire.MsgType.VSTIG_PUT, wire.MsgType.VSTIG_QUERY):
+        return msg.value.__class__ in _SCALARS and msg.key.__class__ in _SCALARS  # type: ignore[attr-defined]
+    return True
+
 
 class Network:
     """The in-queue, the out-queue and the counters of one VM."""
@@ -56,14 +73,17 @@ class Network:
         """Apply every queued payload, in the reference's order, then age swarm records."""
         vm = self.vm
         for sender, payload in self.inbox.drain():
-            try:
-                msg = wire.decode(payload, closure=self._closure)
-            except wire.DecodeError as e:
-                self.stats["decode_errors"] += 1
-                _log.warning(
-                    "robot %d: dropped a message from robot %d: %s", vm.robot_id, sender, e
-                )
-                continue
+            msg = _shared.get(payload)
+            if msg is None:
+                try:
+                    msg = wire.decode(payload, closure=self._closure)
+                except wire.DecodeError as e:
+                    self._dropped(sender, e)
+                    continue
+                if _immutable(msg):
+                    if len(_shared) >= _SHARED_MAX:
+                        _shared.clear()
+                    _shared[payload] = msg
             self.stats["received"] += 1
             kind = msg.type
             if kind == wire.MsgType.BROADCAST:
@@ -80,6 +100,18 @@ class Network:
                 vm.swarms.on_leave(sender, msg.swarm)
         vm.swarms.age()
         vm.stigmergies.end_step()
+
+    def _dropped(self, sender: int, e: wire.DecodeError) -> None:
+        self.stats["decode_errors"] += 1
+        n = self.stats["decode_errors"]
+        if n <= 20 or n % 1000 == 0:  # a flood of garbage must not flood the log too
+            _log.warning(
+                "robot %d: dropped a message from robot %d (%d so far): %s",
+                self.vm.robot_id,
+                sender,
+                n,
+                e,
+            )
 
     def drain(self, budget_bytes: int | None = None, overhead: int = 0) -> list[bytes]:
         """This step's messages to send (queues the periodic swarm list first)."""

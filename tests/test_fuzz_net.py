@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 from fuzz import net_fuzz
 
-from bvm import wire
+from bvm import network, wire
 
 
 def test_campaign_slice() -> None:
@@ -28,5 +28,6 @@ def test_the_property_can_fail(monkeypatch: pytest.MonkeyPatch) -> None:
         return real(payload, closure=closure)
 
     monkeypatch.setattr(wire, "decode", leaky)
+    monkeypatch.setattr(network, "_shared", {})  # no decoding shared with earlier tests
     problem = net_fuzz.check([(3, bytes.fromhex("01 0001 0003"))])
     assert problem is not None and "IndexError" in problem

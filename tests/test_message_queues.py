@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import bvm
-from bvm import wire
+from bvm import network, wire
 from bvm.inbox import Inbox
 from bvm.outbox import Outbox
 
@@ -188,3 +188,20 @@ def test_unsendable_values_are_a_runtime_error(expr: str, words: str) -> None:
     """
     with pytest.raises(bvm.BuzzError, match=f"cannot send.*{words}"):
         make_robot(src)
+
+
+def test_robots_share_decodings_only_of_immutable_messages() -> None:
+    # A table value must not be shared: one robot's listener could change it.
+    src = "neighbors.listen('t', function(topic, v, s) { v.mine = id  got = v })"
+    a, _ = make_robot(src, robot_id=1)
+    b, _ = make_robot(src, robot_id=2)
+    payload = wire.encode(wire.Broadcast("t", bvm.Table(x=1)))
+    for vm in (a, b):
+        vm.receive(9, payload)
+        vm.process_inbox()
+    assert a["got"] == {"x": 1, "mine": 1} and b["got"] == {"x": 1, "mine": 2}
+    assert payload not in network._shared
+    scalar = wire.encode(wire.VstigPut(1, "k", 5, 1, 9))
+    a.receive(9, scalar)
+    a.process_inbox()
+    assert network._shared.get(scalar) == wire.VstigPut(1, "k", 5, 1, 9)
