@@ -1,10 +1,39 @@
-"""The radio delivery model of the simulator: who hears a message, and when.
+"""The radio relay model of the simulator: who hears a packet, when, and from where.
 
-Each payload a robot sends at step t reaches every other robot within `range_m` (a
-broadcast medium, as the XBee and WiFi radios of the field are), except where the link
-drops it, after `latency` steps plus up to `jitter` more. Drops and jitter draw from one
-seeded `random.Random`, in a fixed order (senders by id, payloads in send order, receivers
-by id), so a run is reproducible bit for bit from its seed.
+ROSBuzz has no network simulation (spec rosbuzz §7), so the simulator brings its own. A
+packet a robot sends at tick t reaches every other robot within `range_m` (a broadcast
+medium, as the field's XBee and WiFi radios are), except where its link drops it, after
+`latency` ticks plus 0..`jitter` more (uniform, so packets may overtake each other).
+
+Losses, per directed link (sender -> receiver), are either
+
+* constant: each packet is lost with probability `drop`, independently; or
+* bursty (`GilbertElliott`): each link is a two-state Markov chain, good (G) or bad (B),
+  stepped once per tick, losing a packet with probability `loss_good` or `loss_bad`
+  according to its state at the tick it is sent; see `GilbertElliott.from_loss` for the
+  chain of a given mean loss rate and mean burst length.
+
+Each sender may put at most `bandwidth` bytes on the air per tick (the budget the simulator
+drains its VM's outbox with; more raises ValueError), and every delivery is situated: it
+carries the sender's position at send time, so the receiver computes range and bearing
+from where the sender was, as ROSBuzz does from the packet's latitude and longitude.
+
+Two interfaces share the model:
+
+* per tick, `set_positions(positions)`, then `broadcast(step, sender, data)` once per
+  sender (one opaque bundle, e.g. `fieldkit.bundle.encode`), then `deliveries(step)` gives
+  (receiver, sender, data, sender_position) tuples;
+* `transmit(step, sender, payloads, positions)` / `arrivals(step)`, the per-message
+  interface of `fieldkit.sim.harness`.
+
+Speed, for thousands of robots: the hearers of a sender come from a uniform grid over x and
+y with cells one range wide, rebuilt once per tick, so each sender checks the distance to
+the robots of 9 cells instead of all N; deliveries are plain tuples, queued in per-tick
+buckets. Reproducibility: every random draw comes from one `random.Random(seed)`, in a fixed
+order (the order of the broadcast/transmit calls; within a broadcast, the loss draws of
+the receivers by id, then the jitter draws of the survivors; within a transmit, per payload
+and receiver the loss draws then the jitter draw), so a run is bit for bit reproducible from
+its seed provided the caller sends in a fixed order (e.g. by robot id).
 """
 
 from __future__ import annotations
@@ -13,20 +42,109 @@ import heapq
 import itertools
 import math
 import random
-from collections.abc import Iterable, Mapping
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 Position = tuple[float, float, float]  # metres in a local frame: x east, y north, z up
+#: One delivery: (receiver, sender, data, the sender's position when it sent).
+Delivery = tuple[int, int, bytes, Position]
+
+# The grid cell is a hair wider than the range so that float rounding in x / cell can never
+# put two robots within range more than one cell apart.
+_CELL_MARGIN = 1.0 + 1e-9
+
+
+@dataclass(frozen=True)
+class GilbertElliott:
+    """A bursty loss process per directed link: a good/bad Markov chain stepped once per tick.
+
+    Per tick, a good link turns bad with probability `p_gb` and a bad one turns good with
+    `p_bg`; a packet sent in a tick is lost with `loss_good` or `loss_bad` by the link's
+    state then. A new link (or one unused for a while) starts from the stationary
+    distribution: P(bad) = p_gb / (p_gb + p_bg).
+    """
+
+    p_gb: float
+    p_bg: float
+    loss_good: float = 0.0
+    loss_bad: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("p_gb", "p_bg", "loss_good", "loss_bad"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"{name} must be a probability in [0, 1], got {value}")
+        if self.p_bg == 0.0:
+            raise ValueError("p_bg must be > 0: a bad state that never ends is a dead link")
+
+    @classmethod
+    def from_loss(
+        cls,
+        mean_loss: float,
+        mean_burst: float,
+        *,
+        loss_good: float = 0.0,
+        loss_bad: float = 1.0,
+    ) -> GilbertElliott:
+        """The chain with this mean loss rate and mean burst length (in ticks).
+
+        With the defaults (the Gilbert model: the good state loses nothing, the bad state
+        everything) a burst is a run of consecutive losses and a bad sojourn at once, so
+
+            p_bg = 1 / mean_burst                       (bad sojourns are geometric)
+            pi_B = mean_loss                            (stationary share of bad ticks)
+            p_gb = p_bg * pi_B / (1 - pi_B)             (balance: pi_G p_gb = pi_B p_bg)
+
+        which needs mean_burst >= 1 and p_gb <= 1, i.e. mean_loss <= mean_burst /
+        (mean_burst + 1) (bursts need good ticks between them). With other state losses,
+        mean_burst is the mean bad sojourn and pi_B = (mean_loss - loss_good) /
+        (loss_bad - loss_good).
+        """
+        if not mean_burst >= 1.0:
+            raise ValueError(f"mean_burst must be >= 1 tick, got {mean_burst}")
+        if not loss_good <= mean_loss < loss_bad:
+            raise ValueError(
+                f"mean_loss must be in [loss_good, loss_bad) = [{loss_good}, {loss_bad}),"
+                f" got {mean_loss}"
+            )
+        pi_bad = (mean_loss - loss_good) / (loss_bad - loss_good)
+        p_bg = 1.0 / mean_burst
+        p_gb = p_bg * pi_bad / (1.0 - pi_bad)
+        if p_gb > 1.0:
+            raise ValueError(
+                f"mean loss {mean_loss} is unreachable with bursts of {mean_burst} ticks"
+                f" (at most {mean_burst / (mean_burst + 1):.4f})"
+            )
+        return cls(p_gb, p_bg, loss_good, loss_bad)
+
+    @property
+    def bad_share(self) -> float:
+        """The stationary probability of the bad state."""
+        return self.p_gb / (self.p_gb + self.p_bg)
+
+    @property
+    def mean_loss(self) -> float:
+        """The long-run share of packets lost."""
+        pi_bad = self.bad_share
+        return pi_bad * self.loss_bad + (1.0 - pi_bad) * self.loss_good
+
+    @property
+    def mean_burst(self) -> float:
+        """The mean bad sojourn in ticks (= the mean loss burst for the Gilbert defaults)."""
+        return 1.0 / self.p_bg
 
 
 @dataclass(frozen=True)
 class LinkModel:
-    """The properties of every link: communication range, loss and delay."""
+    """The properties of every link: range, loss, delay, and each sender's bandwidth."""
 
     range_m: float = math.inf
-    drop: float = 0.0  # probability that one payload is lost on one link
+    drop: float = 0.0  # probability that one payload is lost on one link (constant loss)
     latency: int = 1  # steps from sending to the receiver's next inbox
     jitter: int = 0  # extra steps, uniform in 0..jitter
+    bursts: GilbertElliott | None = None  # bursty loss instead of `drop`
+    bandwidth: int | None = None  # bytes a robot may put on the air per step; None: no limit
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.drop <= 1.0:
@@ -37,6 +155,15 @@ class LinkModel:
             raise ValueError(f"jitter must be >= 0, got {self.jitter}")
         if not self.range_m > 0:
             raise ValueError(f"range_m must be > 0, got {self.range_m}")
+        if self.bursts is not None and self.drop:
+            raise ValueError("give either a constant drop or Gilbert-Elliott bursts, not both")
+        if self.bandwidth is not None and self.bandwidth < 1:
+            raise ValueError(f"bandwidth must be >= 1 byte per step, got {self.bandwidth}")
+
+    @classmethod
+    def bursty(cls, mean_loss: float, mean_burst: float, **kwargs: object) -> LinkModel:
+        """A model with Gilbert-Elliott losses of this mean rate and mean burst length (ticks)."""
+        return cls(bursts=GilbertElliott.from_loss(mean_loss, mean_burst), **kwargs)  # type: ignore[arg-type]
 
 
 def distance(a: Position, b: Position) -> float:
@@ -56,20 +183,245 @@ def bearing(origin: Position, target: Position) -> tuple[float, float]:
 
 
 class Radio:
-    """Carries payloads between robots according to a `LinkModel`."""
+    """Carries packets between robots according to a `LinkModel`, reproducibly from `seed`."""
 
     def __init__(self, model: LinkModel, seed: int) -> None:
         self.model = model
         self.rng = random.Random(seed)
         self._in_flight: list[tuple[int, int, int, int, bytes]] = []  # (due, seq, to, from, p)
         self._seq = itertools.count()
-        self.sent = 0
-        self.delivered = 0
-        self.dropped = 0
+        self.sent = 0  # packets sent (a payload or a broadcast counts once, not per hearer)
+        self.delivered = 0  # receptions handed out by arrivals() and deliveries()
+        self.dropped = 0  # receptions lost on their link
+        self.distance_checks = 0  # distances computed to find hearers (the grid's work)
+        self.bytes_sent: dict[int, int] = {}  # robot -> bytes put on the air, all steps
+        self._cell = model.range_m * _CELL_MARGIN if math.isfinite(model.range_m) else 0.0
+        self._positions: dict[int, Position] = {}
+        self._everyone: list[tuple[int, Position]] = []  # (id, position) by id
+        self._grid: dict[tuple[int, int], list[tuple[int, Position]]] = {}  # cell -> robots
+        self._near: dict[tuple[int, int], list[tuple[int, Position]]] = {}  # cell -> 3x3
+        self._grid_source: tuple[int, int] | None = None  # (id(positions), step) of transmit
+        self._buckets: dict[int, list[Delivery]] = {}  # due step -> deliveries, in send order
+        self._due: list[int] = []  # heap of the keys of _buckets
+        self._links: dict[int, dict[int, int]] = {}  # sender -> receiver -> 2 * tick + bad
+        self._bytes_step: int | None = None
+        self._step_bytes: dict[int, int] = {}  # robot -> bytes in step _bytes_step
+        self._histogram: Counter[int] = Counter()  # bytes per step -> (robot, step) count
+
+    # ------------------------------------------------------------------ geometry
 
     def in_range(self, a: Position, b: Position) -> bool:
         """Whether two robots at these positions can hear each other."""
         return distance(a, b) <= self.model.range_m
+
+    def set_positions(self, positions: Mapping[int, Position]) -> None:
+        """Where every robot is this tick; rebuilds the spatial grid (call once per tick)."""
+        self._positions = dict(positions)
+        self._everyone = sorted(self._positions.items())
+        self._grid_source = None
+        self._near = {}
+        grid: dict[tuple[int, int], list[tuple[int, Position]]] = {}
+        cell = self._cell
+        if cell:
+            floor = math.floor
+            isfinite = math.isfinite
+            for item in self._everyone:
+                p = item[1]
+                x, y = p[0], p[1]
+                if not (isfinite(x) and isfinite(y)):
+                    raise ValueError(f"robot {item[0]} has a non-finite position {p}")
+                key = (floor(x / cell), floor(y / cell))
+                members = grid.get(key)
+                if members is None:
+                    grid[key] = [item]
+                else:
+                    members.append(item)
+        self._grid = grid
+
+    def hearers(self, position: Position, exclude: int | None = None) -> list[int]:
+        """The robots (by id, ascending) within range of `position` at the last set_positions."""
+        r = self.model.range_m
+        dist = math.dist
+        cell = self._cell
+        if cell:
+            key = (math.floor(position[0] / cell), math.floor(position[1] / cell))
+            near = self._near.get(key)
+            if near is None:
+                near = self._near[key] = self._around(key)
+        else:
+            near = self._everyone
+        self.distance_checks += len(near)
+        # `near` is sorted by id, so the result is too.
+        return [i for i, p in near if i != exclude and dist(position, p) <= r]
+
+    def _around(self, key: tuple[int, int]) -> list[tuple[int, Position]]:
+        """(id, position) of the robots in the 3 x 3 cells centred on `key`, by id."""
+        grid = self._grid
+        cx, cy = key
+        near: list[tuple[int, Position]] = []
+        for gx in (cx - 1, cx, cx + 1):
+            for gy in (cy - 1, cy, cy + 1):
+                members = grid.get((gx, gy))
+                if members:
+                    near += members
+        near.sort()
+        return near
+
+    def neighbors(self, robot: int) -> list[int]:
+        """The robots `robot` can hear at its position of the last set_positions, by id."""
+        return self.hearers(self._positions[robot], robot)
+
+    # ------------------------------------------------------------------ losses
+
+    def _lost(self, step: int, sender: int, receiver: int) -> bool:
+        """Whether one packet from `sender` to `receiver` sent at `step` is lost (draws)."""
+        model = self.model
+        if model.bursts is None:
+            return bool(model.drop) and self.rng.random() < model.drop
+        return not self._survivors(step, sender, (receiver,))
+
+    def _survivors(self, step: int, sender: int, hearers: Sequence[int]) -> list[int]:
+        """The hearers whose link keeps a packet sent at `step`; draws in hearer order."""
+        model = self.model
+        rnd = self.rng.random
+        ge = model.bursts
+        if ge is None:
+            drop = model.drop
+            return [r for r in hearers if not rnd() < drop] if drop else list(hearers)
+        links = self._links.get(sender)
+        if links is None:
+            links = self._links[sender] = {}
+        p_gb = ge.p_gb
+        stay_bad = 1.0 - ge.p_bg
+        pi_bad = ge.bad_share
+        fade = 1.0 - ge.p_gb - ge.p_bg
+        loss_good = ge.loss_good
+        loss_bad = ge.loss_bad
+        tick = 2 * step
+        kept = []
+        for r in hearers:
+            # The link's state now, from its state when it last carried a packet.
+            state = links.get(r)
+            if state is None:
+                p_bad = pi_bad  # a new link starts from the stationary law
+            else:
+                bad = state & 1
+                n = step - (state >> 1)
+                if n == 1:
+                    p_bad = stay_bad if bad else p_gb
+                elif n <= 0:
+                    p_bad = bad  # another packet in the same tick: same state
+                else:
+                    # n steps at once: the distance to the stationary law shrinks by `fade`
+                    # per step.
+                    p_bad = pi_bad + (bad - pi_bad) * fade**n
+            bad = 1 if p_bad >= 1.0 else 0 if p_bad <= 0.0 else int(rnd() < p_bad)
+            links[r] = tick + bad
+            loss = loss_bad if bad else loss_good
+            if loss >= 1.0 or (loss > 0.0 and rnd() < loss):
+                continue
+            kept.append(r)
+        return kept
+
+    # ------------------------------------------------------------------ bytes
+
+    def _account(self, step: int, sender: int, nbytes: int) -> None:
+        """Count `nbytes` on the air for `sender` at `step`; ValueError over the bandwidth."""
+        if step != self._bytes_step:
+            self._fold()
+            self._bytes_step = step
+        used = self._step_bytes.get(sender, 0) + nbytes
+        limit = self.model.bandwidth
+        if limit is not None and used > limit:
+            raise ValueError(
+                f"robot {sender} would put {used} bytes on the air in step {step},"
+                f" over its bandwidth of {limit}"
+            )
+        self._step_bytes[sender] = used
+        self.bytes_sent[sender] = self.bytes_sent.get(sender, 0) + nbytes
+
+    def _fold(self) -> None:
+        self._histogram.update(self._step_bytes.values())
+        self._step_bytes = {}
+
+    def room(self, step: int, sender: int) -> int | None:
+        """Bytes `sender` may still send in `step` (None: no bandwidth limit)."""
+        limit = self.model.bandwidth
+        if limit is None:
+            return None
+        return limit - (self._step_bytes.get(sender, 0) if step == self._bytes_step else 0)
+
+    def step_bytes(self) -> dict[int, int]:
+        """Bytes each robot put on the air in the latest step anyone sent in."""
+        return dict(self._step_bytes)
+
+    def air_histogram(self) -> dict[int, int]:
+        """{bytes sent in one step: number of (robot, step) pairs}, over robots that sent."""
+        out = self._histogram.copy()
+        out.update(self._step_bytes.values())
+        return dict(sorted(out.items()))
+
+    # ------------------------------------------------------------------ one bundle a tick
+
+    def broadcast(
+        self, step: int, sender: int, data: bytes, position: Position | None = None
+    ) -> None:
+        """Put `data` on the air from `sender` at `step`, heard from `position`.
+
+        The hearers are the robots of the last set_positions within range of `position`
+        (default: the sender's position there); every delivery carries it. Raises ValueError
+        beyond the sender's bandwidth (nothing sent), RuntimeError before any set_positions.
+        """
+        if not self._everyone:
+            # Without positions nobody would hear anything: a silent trap, so refuse.
+            raise RuntimeError("call set_positions() before broadcast()")
+        if position is None:
+            position = self._positions[sender]
+        self._account(step, sender, len(data))
+        self.sent += 1
+        hearers = self.hearers(position, sender)
+        model = self.model
+        kept = (
+            self._survivors(step, sender, hearers)
+            if model.drop or model.bursts is not None
+            else hearers
+        )
+        self.dropped += len(hearers) - len(kept)
+        due = step + model.latency
+        if not model.jitter:
+            self._bucket(due).extend([(r, sender, data, position) for r in kept])
+            return
+        rnd = self.rng.random
+        span = model.jitter + 1
+        slots = [self._bucket(due + k) for k in range(span)]
+        for r in kept:
+            slots[int(rnd() * span)].append((r, sender, data, position))
+
+    def _bucket(self, due: int) -> list[Delivery]:
+        bucket = self._buckets.get(due)
+        if bucket is None:
+            bucket = self._buckets[due] = []
+            heapq.heappush(self._due, due)
+        return bucket
+
+    def deliveries(self, step: int) -> list[Delivery]:
+        """Pop every (receiver, sender, data, sender_position) due by `step`, in send order."""
+        due = self._due
+        if not due or due[0] > step:
+            return []
+        out: list[Delivery] = []
+        buckets = self._buckets
+        while due and due[0] <= step:
+            out += buckets.pop(heapq.heappop(due))
+        self.delivered += len(out)
+        return out
+
+    @property
+    def in_flight(self) -> int:
+        """Deliveries queued and not yet due (both interfaces)."""
+        return sum(map(len, self._buckets.values())) + len(self._in_flight)
+
+    # ------------------------------------------------------------------ per-message interface
 
     def transmit(
         self,
@@ -78,17 +430,23 @@ class Radio:
         payloads: Iterable[bytes],
         positions: Mapping[int, Position],
     ) -> None:
-        """Send `payloads` from `sender` at `step` to everyone in range."""
+        """Send `payloads` from `sender` at `step` to everyone in range.
+
+        `positions` must not change within a step: its grid is built on the first call of
+        the step and reused by the other senders.
+        """
+        payloads = list(payloads)
+        self._account(step, sender, sum(map(len, payloads)))
+        if self._grid_source != (id(positions), step):
+            self.set_positions(positions)
+            self._grid_source = (id(positions), step)
         model = self.model
         rng = self.rng
-        here = positions[sender]
-        hearers = [
-            r for r in sorted(positions) if r != sender and self.in_range(here, positions[r])
-        ]
+        hearers = self.hearers(positions[sender], sender)
         for payload in payloads:
             self.sent += 1
             for r in hearers:
-                if model.drop and rng.random() < model.drop:
+                if self._lost(step, sender, r):
                     self.dropped += 1
                     continue
                 due = step + model.latency + (rng.randint(0, model.jitter) if model.jitter else 0)
