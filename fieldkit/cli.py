@@ -20,6 +20,15 @@ app = typer.Typer(
 )
 
 
+def _add_subcommands() -> None:
+    from fieldkit.sim.cli import sim_app
+
+    app.add_typer(sim_app, name="sim")
+
+
+_add_subcommands()
+
+
 def _fail(message: str) -> typer.Exit:
     """Print an error on stderr and return the exit to raise."""
     typer.echo(message, err=True)
