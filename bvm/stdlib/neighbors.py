@@ -14,10 +14,11 @@ use (so they get the ids the reference gives the first ones) and binds copies to
 
 from __future__ import annotations
 
+from array import array
 from typing import Any
 
 from bvm.stdlib.base import expected
-from bvm.values import Closure, Table, f32
+from bvm.values import Closure, Table
 
 _Vm = Any
 
@@ -38,16 +39,14 @@ class Neighbors:
     def set(self, entries: list[tuple[int, float, float, float]]) -> None:
         """Replace this step's neighbors: (robot id, distance, azimuth, elevation) each."""
         poses = Table()
-        for rid, distance, azimuth, elevation in entries:
-            if rid.__class__ is not int and not isinstance(rid, int):
-                raise TypeError(f"neighbor id must be an int, got {type(rid).__name__}")
-            if not 0 <= rid <= 0xFFFF:
-                raise ValueError(f"neighbor id {rid} is outside 0..65535")
-            poses[int(rid)] = Table(
-                distance=f32(float(distance)),
-                azimuth=f32(float(azimuth)),
-                elevation=f32(float(elevation)),
-            )
+        # One C-level conversion rounds every number to binary32 (Buzz floats).
+        values = array("f", [v for e in entries for v in e[1:4]])
+        for k, e in enumerate(entries):
+            rid = e[0]
+            if rid.__class__ is not int or not 0 <= rid <= 0xFFFF:
+                raise ValueError(f"neighbor id must be an int in 0..65535, got {rid!r}")
+            j = 3 * k
+            poses[rid] = Table(distance=values[j], azimuth=values[j + 1], elevation=values[j + 2])
         self.table[POSES] = poses
 
     # ------------------------------------------------------------ script side

@@ -41,7 +41,9 @@ class Swarms:
     def __init__(self, vm: _Vm) -> None:
         self.vm = vm
         self.flags: dict[int, int] = {}
-        self.peers: dict[int, tuple[dict[int, None], int]] = {}  # robot -> (swarm ids, age)
+        # robot -> (its swarm ids, the step of its last news), oldest news first
+        self.peers: dict[int, tuple[dict[int, None], int]] = {}
+        self.now = 0  # steps processed
         self.stack: list[int] = []
         self.countdown = LIST_PERIOD
         self._methods: list[tuple[str, Closure]] | None = None
@@ -63,17 +65,22 @@ class Swarms:
 
     # ------------------------------------------------------------ messages
 
+    def _refresh(self, robot: int, ids: dict[int, None]) -> None:
+        # Re-inserted, so the dict stays ordered by the time of last news (see `age`).
+        self.peers.pop(robot, None)
+        self.peers[robot] = (ids, self.now)
+
     def on_list(self, robot: int, ids: tuple[int, ...]) -> None:
         """A SWARM_LIST from `robot`: its memberships (an empty list is ignored, as in C)."""
         if ids:
-            self.peers[robot] = (dict.fromkeys(ids), 0)
+            self._refresh(robot, dict.fromkeys(ids))
 
     def on_join(self, robot: int, swarm: int) -> None:
         """A SWARM_JOIN from `robot`."""
         record = self.peers.get(robot)
         ids = record[0] if record else {}
         ids[swarm] = None
-        self.peers[robot] = (ids, 0)
+        self._refresh(robot, ids)
 
     def on_leave(self, robot: int, swarm: int) -> None:
         """A SWARM_LEAVE from `robot`: forget the robot once it is in no swarm."""
@@ -83,13 +90,20 @@ class Swarms:
         ids = record[0]
         ids.pop(swarm, None)
         if ids:
-            self.peers[robot] = (ids, 0)
+            self._refresh(robot, ids)
         else:
             del self.peers[robot]
 
     def age(self) -> None:
-        """One step passed: age every record, forget those older than MAX_AGE."""
-        self.peers = {r: (ids, a + 1) for r, (ids, a) in self.peers.items() if a + 1 <= MAX_AGE}
+        """One step passed: forget the robots with no news for more than MAX_AGE steps."""
+        self.now += 1
+        peers = self.peers
+        # Oldest news first: stop at the first record still young (O(forgotten) a step).
+        while peers:
+            robot = next(iter(peers))
+            if self.now - peers[robot][1] <= MAX_AGE:
+                break
+            del peers[robot]
 
     def tick(self) -> None:
         """Called once per step before sending: every LIST_PERIOD steps, queue a LIST."""
