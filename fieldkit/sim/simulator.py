@@ -30,6 +30,7 @@ from bvm.errors import BuzzError
 from fieldkit import bundle as wirebundle
 from fieldkit import geo
 from fieldkit.profiles import Profile, load_profile
+from fieldkit.safety import Supervisor, VehicleState
 from fieldkit.script_api import ON_GROUND, V_GROUND, V_UAV, Command, ScriptAPI, Sensors
 from fieldkit.sim.kinematics import Vehicle
 from fieldkit.sim.radio import LinkModel, Radio
@@ -119,7 +120,7 @@ class SimConfig:
 class SimRobot:
     """One simulated robot: its VM and script API, its vehicle, what it hears."""
 
-    __slots__ = ("id", "vm", "api", "vehicle", "heard", "error", "state", "log", "home")
+    __slots__ = ("id", "vm", "api", "vehicle", "heard", "error", "state", "log", "home", "safety")
 
     def __init__(self, rid: int, vm: bvm.VM, api: ScriptAPI, vehicle: Vehicle) -> None:
         self.id = rid
@@ -131,6 +132,7 @@ class SimRobot:
         self.state: str | None = None
         self.log: list[str] = []
         self.home = (vehicle.x, vehicle.y)
+        self.safety: Supervisor | None = None
 
 
 class Simulation:
@@ -178,6 +180,7 @@ class Simulation:
                 rng=random.Random(f"api:{config.seed}:{rid}"),
             )
             robot.api = api
+            robot.safety = Supervisor(self.profile, self.frame)
             self.robots[rid] = robot
             try:
                 vm.load(self.program)
@@ -300,29 +303,38 @@ class Simulation:
         self.radio.broadcast(self.tick, robot.id, data)
 
     def _actuate(self, robot: SimRobot, commands: list[Command]) -> None:
+        """The script's commands through the safety supervisor, one order to the vehicle."""
         v = robot.vehicle
-        for c in commands:
-            kind = c.kind
-            if kind == "goto":
-                north, east, alt = c.args
-                v.goto(east, north, alt)
-            elif kind == "takeoff":
-                if not v.armed:
-                    v.arm()
-                v.takeoff(c.args[0])
-            elif kind == "land":
-                v.land()
-            elif kind == "arm":
+        safety = robot.safety
+        safety.submit(commands)  # type: ignore[union-attr]
+        order = safety.tick(  # type: ignore[union-attr]
+            VehicleState(v.y, v.x, v.z, v.status != ON_GROUND, v.battery_percent)
+        )
+        if order is None:
+            return
+        kind = order.kind
+        if kind == "goto":
+            north, east, alt = order.args
+            v.goto(east, north, alt)
+        elif kind == "takeoff":
+            if not v.armed:
                 v.arm()
-            elif kind == "disarm":
-                v.disarm()
-            elif kind == "rtl":
-                v.goto(robot.home[0], robot.home[1], v.z)
+            v.takeoff(order.args[0])
+        elif kind == "land":
+            v.land()
+        elif kind == "arm":
+            v.arm()
+        elif kind == "disarm":
+            v.disarm()
+        elif kind == "rtl":
+            v.goto(robot.home[0], robot.home[1], v.z)
+        else:  # hold
+            v.hold()
 
     def _fail(self, robot: SimRobot, e: BuzzError) -> None:
         """A script error: stop this robot's script, hold the vehicle, keep the report."""
         robot.error = str(e)
-        robot.vehicle.hold()
+        robot.safety.script_error(str(e))  # type: ignore[union-attr]
         _log.error("robot %d: script error, holding position: %s", robot.id, e)
 
     # ------------------------------------------------------------ running
