@@ -122,3 +122,11 @@ def test_bad_command_syntax(text: str) -> None:
 def test_command_with_waypoint_params() -> None:
     c = RcCommand.parse("12.5:1:16:50:45.5:-73.6:10")
     assert c == RcCommand(12.5, 1, 16, (50.0, 45.5, -73.6, 10.0))
+
+
+def test_bursty_losses(tmp_path: Path) -> None:
+    sim = run(tmp_path, drop=0.3, burst=4.0, seed=3)
+    assert sim.radio.model.bursts is not None
+    assert sim.summary()["final_states"] == {str(i): "FLYING" for i in range(1, 6)}
+    with pytest.raises(ConfigError, match="--burst"):
+        Simulation(SimConfig(script=script(tmp_path), robots=2, drop=0.9, burst=1.0))

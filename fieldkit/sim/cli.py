@@ -42,6 +42,10 @@ def run_cmd(
         list[Path] | None, typer.Option("-I", "--include", help="Extra include directory.")
     ] = None,
     drop: Annotated[float, typer.Option("--drop", help="Per-link payload loss, 0..1.")] = 0.0,
+    burst: Annotated[
+        float | None,
+        typer.Option("--burst", help="Mean loss burst length in ticks (Gilbert-Elliott)."),
+    ] = None,
     latency: Annotated[int, typer.Option("--latency", help="Radio latency in ticks.")] = 1,
     range_m: Annotated[float, typer.Option("--range", help="Radio range in metres.")] = 500.0,
     seconds: Annotated[float, typer.Option("--seconds", help="Simulated seconds.")] = 60.0,
@@ -64,6 +68,7 @@ def run_cmd(
             script=script,
             robots=robots,
             drop=drop,
+            burst=burst,
             latency=latency,
             range_m=range_m,
             seconds=seconds,

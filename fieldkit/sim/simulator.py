@@ -155,10 +155,7 @@ class Simulation:
             raise ConfigError(f"--profile {config.profile!r}: {e}") from None
         self.program = bvm.compile_file(config.script, include_dirs=tuple(config.include_dirs))
         self.frame = geo.LocalFrame(*config.origin)
-        self.radio = Radio(
-            LinkModel(range_m=config.range_m, drop=config.drop, latency=config.latency),
-            seed=config.seed,
-        )
+        self.radio = Radio(self._link_model(config), seed=config.seed)
         self.tick = 0
         self.on_log = on_log
         self.bundle_sizes: list[int] = []  # Buzz block bytes of every bundle sent
@@ -201,6 +198,17 @@ class Simulation:
                     vm.call("init")
             except BuzzError as e:
                 self._fail(robot, e)
+
+    @staticmethod
+    def _link_model(config: SimConfig) -> LinkModel:
+        if config.burst is None or config.drop == 0.0:
+            return LinkModel(range_m=config.range_m, drop=config.drop, latency=config.latency)
+        try:
+            return LinkModel.bursty(
+                config.drop, config.burst, range_m=config.range_m, latency=config.latency
+            )
+        except ValueError as e:
+            raise ConfigError(f"--drop {config.drop} with --burst {config.burst}: {e}") from None
 
     def _sink(self, robot: SimRobot) -> Callable[[int, str], None]:
         def sink(_rid: int, text: str) -> None:
