@@ -11,9 +11,11 @@ frame of ROSBuzz), `height` in metres (carried, unused). Blank lines and `#` com
 ignored. ROSBuzz's own files used centimetres; ours use metres (see the file headers).
 
 A shape name such as "POLY" is composed from the letter files left to right (west to east):
-each letter is placed `LETTER_GAP` metres east of the previous one, and its root hangs off
-the previous letter's node nearest to it, so the whole shape is one tree. Labels are
-renumbered 0..n-1 so that every predecessor comes before its children.
+each letter is placed `LETTER_GAP` metres east of the previous one (baselines aligned), and
+its root hangs off the previous letter's root, so the whole shape is one tree whose depth
+is (number of letters) + (depth of a letter): letters can form in parallel once their
+roots are placed. Labels are renumbered 0..n-1 so that every predecessor comes before its
+children.
 """
 
 from __future__ import annotations
@@ -192,7 +194,7 @@ def _compose_cached(name: str, graph_dir: str) -> tuple[Node, ...]:
         raise GraphError("empty shape name")
     out: list[Node] = []
     placed: dict[int, Point] = {}  # label -> absolute position, all letters so far
-    previous: list[int] = []  # labels of the previous letter
+    previous_root = -1  # label of the previous letter's root
     for letter in name:
         path = directory / f"{letter}.graph"
         if not path.is_file():
@@ -215,17 +217,14 @@ def _compose_cached(name: str, graph_dir: str) -> tuple[Node, ...]:
             if n.pred != -1:
                 out.append(replace(n, label=base + n.label, pred=base + n.pred, line=0))
                 continue
-            root = absolute[n.label]
-            if not previous:
+            if previous_root < 0:
                 out.append(replace(n, label=base, line=0))
             else:
-                # Hang the letter off the nearest node of the previous letter.
-                anchor = min(previous, key=lambda lbl: math.dist(placed[lbl], root))
-                distance, bearing = _polar(placed[anchor], root)
-                out.append(Node(base, anchor, distance, bearing, n.height))
+                distance, bearing = _polar(placed[previous_root], absolute[n.label])
+                out.append(Node(base, previous_root, distance, bearing, n.height))
         for lbl, p in absolute.items():
             placed[base + lbl] = p
-        previous = [base + lbl for lbl in absolute]
+        previous_root = base
     return tuple(out)
 
 

@@ -74,8 +74,10 @@ def test_composed_shapes_are_connected_trees_in_parent_first_order(name: str, co
     pts = [pos[i] for i in range(count)]
     closest = min(math.dist(a, b) for i, a in enumerate(pts) for b in pts[i + 1 :])
     assert closest >= 5.0 - 1e-4
-    # Letters go west to east: each letter's nodes lie east of the previous letter's.
+    # Letters go west to east: each letter's nodes lie east of the previous letter's, and
+    # its root hangs off the previous letter's root (so letters form in parallel).
     for k in range(1, len(name)):
+        assert nodes[6 * k].pred == 6 * (k - 1)
         prev_east = max(p[1] for p in pts[6 * (k - 1) : 6 * k])
         here_west = min(p[1] for p in pts[6 * k : 6 * (k + 1)])
         assert here_west == pytest.approx(prev_east + shapes.LETTER_GAP)
@@ -128,6 +130,7 @@ def test_graph_table_layout_for_buzz() -> None:
         assert g[n.label]["distance"] == pytest.approx(n.distance, rel=1e-6)
         assert g[n.label]["bearing"] == pytest.approx(n.bearing, rel=1e-6)
     assert vm["last"]["pred"] == 10
+    assert g[6]["pred"] == 0
 
 
 def test_load_graph_errors_are_buzz_errors() -> None:
