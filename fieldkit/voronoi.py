@@ -3,8 +3,10 @@ the coverage metric).
 
 Points are (x, y) pairs in metres in any planar frame (the scripts use x north, y east).
 A site's cell is the set of points of the boundary polygon at least as close to it as to
-any other site: the boundary polygon clipped by the bisector half-plane of every other
-site. Unlike ROSBuzz's Fortune-based code, the polygon's corners that fall inside a cell
+any other site: the intersection of the bisector half-planes of every other site with the
+polygon's own half-planes, computed by Qhull (`scipy.spatial.HalfspaceIntersection`); a
+site on or outside the boundary has no interior point for Qhull, so its cell is clipped
+directly. Unlike ROSBuzz's Fortune-based code, the polygon's corners that fall inside a cell
 belong to it, so boundary cells are complete and their centroids unbiased.
 
 The boundary is a convex polygon (its convex hull is taken, so vertex order does not
@@ -20,7 +22,7 @@ import random
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
 Point = tuple[float, float]
 
@@ -77,28 +79,51 @@ def convex_hull(
 
 def area(polygon: Sequence[Sequence[float]]) -> float:
     """Signed area (shoelace): positive when the vertices run counter-clockwise."""
-    if len(polygon) < 3:
+    n = len(polygon)
+    if n < 3:
         return 0.0
-    p = np.asarray(polygon, dtype=float)
-    x, y = p[:, 0], p[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    # Plain floats: cells have a handful of vertices, where numpy's call costs dominate.
+    total = 0.0
+    x0, y0 = polygon[-1]
+    for x1, y1 in polygon:
+        total += x0 * y1 - x1 * y0
+        x0, y0 = x1, y1
+    return 0.5 * float(total)
 
 
 def centroid(polygon: Sequence[Sequence[float]]) -> Point | None:
     """Area-weighted centroid; the vertex mean if the area is ~0; None if empty."""
-    if len(polygon) == 0:
+    n = len(polygon)
+    if n == 0:
         return None
-    p = np.asarray(polygon, dtype=float)
-    a = area(p)
+    a = area(polygon)
     if abs(a) < AREA_EPS:
-        mean = p.mean(axis=0)
-        return float(mean[0]), float(mean[1])
-    x, y = p[:, 0], p[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cross = x * yn - xn * y
-    cx = float(np.dot(x + xn, cross)) / (6.0 * a)
-    cy = float(np.dot(y + yn, cross)) / (6.0 * a)
-    return cx, cy
+        return (
+            float(sum(p[0] for p in polygon)) / n,
+            float(sum(p[1] for p in polygon)) / n,
+        )
+    cx = cy = 0.0
+    x0, y0 = polygon[-1]
+    for x1, y1 in polygon:
+        cross = x0 * y1 - x1 * y0
+        cx += (x0 + x1) * cross
+        cy += (y0 + y1) * cross
+        x0, y0 = x1, y1
+    return float(cx) / (6.0 * a), float(cy) / (6.0 * a)
+
+
+def _convex_ccw(polygon: Sequence[Sequence[float]]) -> bool:
+    """Whether the polygon is already strictly convex and counter-clockwise (a hull)."""
+    n = len(polygon)
+    if n < 3:
+        return False
+    for k in range(n):
+        (x0, y0), (x1, y1), (x2, y2) = polygon[k - 2], polygon[k - 1], polygon[k]
+        if not all(map(math.isfinite, (x2, y2))):
+            return False
+        if (x1 - x0) * (y2 - y1) - (y1 - y0) * (x2 - x1) <= EPS:
+            return False
+    return True
 
 
 def contains(polygon: Sequence[Sequence[float]], point: Sequence[float], tol: float = 1e-9) -> bool:
@@ -149,25 +174,68 @@ def bounded_cell(
     the polygon (a site outside it can still own a part) or the polygon has no area.
     Other sites at the same position as this one are ignored: they share its cell.
     """
-    cell = convex_hull(boundary_polygon)
+    if _convex_ccw(boundary_polygon):
+        cell = [(float(x), float(y)) for x, y in boundary_polygon]  # a hull already
+    else:
+        cell = convex_hull(boundary_polygon)
     if len(cell) < 3 or abs(area(cell)) < AREA_EPS:
         return []
     pts = np.asarray(sites, dtype=float).reshape(-1, 2)
     if not 0 <= site_index < len(pts) or not np.all(np.isfinite(pts[site_index])):
         return []
     me = pts[site_index]
-    for j, other in enumerate(pts):
-        if j == site_index or not np.all(np.isfinite(other)):
-            continue
+    others = pts[np.all(np.isfinite(pts), axis=1)]
+    others = others[np.hypot(*(others - me).T) >= EPS]  # itself and sites on top of it
+    if _strictly_inside(cell, me):
+        qhull = _qhull_cell(me, others, cell)
+        if qhull is not None:
+            return qhull
+    # The site on or outside the boundary: Qhull needs a point strictly inside the cell,
+    # so clip the boundary by each bisector half-plane instead (Sutherland-Hodgman).
+    for other in others:
         normal = (float(other[0] - me[0]), float(other[1] - me[1]))
-        if math.hypot(*normal) < EPS:
-            continue
         # |p - me|^2 <= |p - other|^2  <=>  2 (other - me) . p <= |other|^2 - |me|^2
         offset = 0.5 * (float(other @ other) - float(me @ me))
         cell = _clip(cell, normal, offset)
         if len(cell) < 3:
             return []
     cell = _tidy(cell)
+    return cell if len(cell) >= 3 and abs(area(cell)) >= AREA_EPS else []
+
+
+def _strictly_inside(polygon: list[Point], p: np.ndarray, margin: float = 1e-6) -> bool:
+    """Whether p is inside the counter-clockwise convex polygon, off its edges."""
+    px, py = float(p[0]), float(p[1])
+    for (x0, y0), (x1, y1) in zip(polygon, polygon[1:] + polygon[:1], strict=True):
+        edge = math.hypot(x1 - x0, y1 - y0)
+        if (x1 - x0) * (py - y0) - (y1 - y0) * (px - x0) <= margin * edge:
+            return False
+    return True
+
+
+def _qhull_cell(me: np.ndarray, others: np.ndarray, polygon: list[Point]) -> list[Point] | None:
+    """The cell as Qhull's intersection of half-planes (bisectors and the polygon's edges).
+
+    Rows [a, b, c] mean a x + b y + c <= 0. None if Qhull declines (then the caller clips).
+    """
+    normals = others - me
+    offsets = -0.5 * (np.einsum("ij,ij->i", others, others) - float(me @ me))
+    poly = np.asarray(polygon, dtype=float)
+    edge = np.roll(poly, -1, axis=0) - poly
+    outward = np.column_stack([edge[:, 1], -edge[:, 0]])  # CCW polygon: interior on the left
+    rows = np.vstack(
+        [
+            np.column_stack([normals, offsets]),
+            np.column_stack([outward, -np.einsum("ij,ij->i", outward, poly)]),
+        ]
+    )
+    try:
+        vertices = HalfspaceIntersection(rows, me).intersections
+    except (QhullError, ValueError):
+        return None
+    centre = vertices.mean(axis=0)
+    order = np.argsort(np.arctan2(vertices[:, 1] - centre[1], vertices[:, 0] - centre[0]))
+    cell = _tidy([(float(x), float(y)) for x, y in vertices[order]])
     return cell if len(cell) >= 3 and abs(area(cell)) >= AREA_EPS else []
 
 
