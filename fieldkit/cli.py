@@ -24,6 +24,9 @@ def _add_subcommands() -> None:
     from fieldkit.sim.cli import sim_app
 
     app.add_typer(sim_app, name="sim")
+    from fieldkit.autopilot.cli import vehicle_sim_cmd
+
+    app.command("vehicle-sim")(vehicle_sim_cmd)
 
 
 _add_subcommands()

@@ -1,0 +1,197 @@
+"""`fieldkit vehicle-sim`: a simulated ArduPilot vehicle on a pty, a serial port or a URL.
+
+    fieldkit vehicle-sim --profile solo                      # prints a pty path: open it
+    fieldkit vehicle-sim --profile husky --port ttySIM       # ./ttySIM -> the pty
+    fieldkit vehicle-sim --profile solo --port tcpin:0.0.0.0:5760 --home 45.5,-73.6
+
+With `--port auto` (the default) or any bare name, a pseudo-terminal is created and its path
+is the first line on stdout, for the node (`autopilot.url`) to open; a bare name other than
+"auto" is also made a symbolic link to it in the current directory. A path (`/dev/ttyUSB1`)
+or a pymavlink connection string (`tcpin:`, `udpout:`...) is opened as it is. Runs until
+Ctrl-C (or SIGTERM); what the vehicle does is logged on stderr.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from fieldkit.profiles import ProfileError, load_profile
+
+if TYPE_CHECKING:
+    from fieldkit.autopilot.vehicle_sim import PtyPair, SimVehicle
+
+
+def _fail(message: str) -> typer.Exit:
+    """Print an error on stderr and return the exit to raise."""
+    typer.echo(f"vehicle-sim: {message}", err=True)
+    return typer.Exit(1)
+
+
+def parse_home(text: str) -> tuple[float, float]:
+    """ "LAT,LON" in degrees -> (lat, lon); ValueError with the expected form otherwise."""
+    parts = text.split(",")
+    form = f"--home: expected LAT,LON in degrees such as 45.5,-73.6, got {text!r}"
+    if len(parts) != 2:
+        raise ValueError(form)
+    try:
+        lat, lon = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise ValueError(form) from None
+    if not (math.isfinite(lat) and -90.0 < lat < 90.0):
+        raise ValueError(f"--home: latitude must be between -90 and 90, got {parts[0].strip()}")
+    if not (math.isfinite(lon) and -180.0 <= lon <= 180.0):
+        raise ValueError(f"--home: longitude must be between -180 and 180, got {parts[1].strip()}")
+    return lat, lon
+
+
+def _is_pty_request(port: str) -> bool:
+    """A bare name (no directory, no URL scheme) asks for a new pty."""
+    return "/" not in port and ":" not in port and "\\" not in port
+
+
+def vehicle_sim_cmd(
+    profile: Annotated[
+        str, typer.Option("--profile", help="Device profile: a name (solo, husky...) or a .toml.")
+    ],
+    port: Annotated[
+        str,
+        typer.Option(
+            "--port",
+            help="'auto' (or a bare name, linked to it here): a new pty, path printed; "
+            "a device path; or a pymavlink URL such as tcpin:0.0.0.0:5760.",
+        ),
+    ] = "auto",
+    home: Annotated[
+        str | None,
+        typer.Option(
+            "--home",
+            help="Where the vehicle boots: LAT,LON in degrees (default: Polytechnique "
+            "Montreal, 45.5049,-73.6133).",
+        ),
+    ] = None,
+    baud: Annotated[int, typer.Option("--baud", help="Serial speed for a device path.")] = 57600,
+    rate: Annotated[float, typer.Option("--rate", help="Physics steps per second.")] = 50.0,
+    gps_delay: Annotated[
+        float, typer.Option("--gps-delay", help="Seconds from boot to a 3D GPS fix.")
+    ] = 2.0,
+    stream_hz: Annotated[
+        float,
+        typer.Option(
+            "--stream-hz",
+            help="Telemetry rate before anyone asks (0: heartbeats only, until the node "
+            "requests streams).",
+        ),
+    ] = 0.0,
+    sysid: Annotated[int, typer.Option("--sysid", help="MAVLink system id.")] = 1,
+) -> None:
+    """Run a simulated ArduPilot vehicle (Copter, or Rover for a ground profile)."""
+    # Imported here: pymavlink is slow to import, and every fieldkit command loads this file.
+    from fieldkit.autopilot.vehicle_sim import DEFAULT_HOME, SimVehicle, VehicleSimError, open_pty
+
+    try:
+        prof = load_profile(profile)
+    except ProfileError as e:
+        raise _fail(str(e)) from None
+    try:
+        home_ll = DEFAULT_HOME if home is None else parse_home(home)
+    except ValueError as e:
+        raise _fail(str(e)) from None
+    if not (math.isfinite(rate) and rate > 0):
+        raise _fail(f"--rate must be > 0, got {rate}")
+    if not (math.isfinite(gps_delay) and gps_delay >= 0):
+        raise _fail(f"--gps-delay must be >= 0, got {gps_delay}")
+    if not (math.isfinite(stream_hz) and stream_hz >= 0):
+        raise _fail(f"--stream-hz must be >= 0, got {stream_hz}")
+    if not 1 <= sysid <= 255:
+        raise _fail(f"--sysid must be in 1..255, got {sysid}")
+
+    pty: PtyPair | None = None
+    link: Path | None = None  # set once we have made it: only then is it ours to remove
+    try:
+        if _is_pty_request(port):
+            wanted = Path(port) if port != "auto" else None
+            if wanted is not None and (wanted.exists() or wanted.is_symlink()):
+                raise _fail(f"{port} already exists: remove it or choose another name")
+            try:
+                pty = open_pty()
+            except OSError as e:
+                raise _fail(f"cannot create a pty: {e.strerror or e}") from None
+            device: str | int = pty.master
+            if wanted is not None:
+                try:
+                    wanted.symlink_to(pty.slave_path)
+                except OSError as e:
+                    raise _fail(f"cannot create {port}: {e.strerror or e}") from None
+                link = wanted
+        else:
+            device = port
+        try:
+            sim = SimVehicle(
+                prof,
+                device,
+                home=home_ll,
+                baud=baud,
+                sysid=sysid,
+                gps_fix_delay_s=gps_delay,
+                default_rate_hz=stream_hz,
+            )
+        except VehicleSimError as e:
+            raise _fail(str(e)) from None
+        _serve(sim, prof.name, home_ll, port, pty, link, rate)
+    finally:
+        if link is not None:
+            try:
+                link.unlink()
+            except OSError:
+                pass
+        if pty is not None:
+            pty.close()
+
+
+def _serve(
+    sim: SimVehicle,
+    name: str,
+    home: tuple[float, float],
+    port: str,
+    pty: PtyPair | None,
+    link: Path | None,
+    rate: float,
+) -> None:
+    """Print where to connect, run in real time until Ctrl-C or SIGTERM, then close."""
+    if pty is not None:
+        # First line on stdout: the path alone, for scripts (`read PORT < <(...)`).
+        print(os.path.abspath(link) if link is not None else pty.slave_path, flush=True)
+    kind = "ArduPilot Rover" if sim.ground else "ArduCopter"
+    where = pty.slave_path if pty is not None else port
+    typer.echo(
+        f"vehicle-sim: {name} ({kind}, system {sim.sysid}) at {home[0]},{home[1]} on {where}; "
+        "Ctrl-C to stop",
+        err=True,
+    )
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("vehicle-sim: %(message)s"))
+    logger = logging.getLogger("fieldkit.vehicle_sim")
+    logger.addHandler(handler)
+    old_level = logger.level
+    logger.setLevel(logging.INFO)
+    stop = threading.Event()
+    old_term = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        sim.run(rate, stop)
+    except KeyboardInterrupt:
+        pass  # Ctrl-C is how this command is meant to end
+    finally:
+        signal.signal(signal.SIGTERM, old_term)
+        logger.removeHandler(handler)
+        logger.setLevel(old_level)
+        sim.close()
+    typer.echo("vehicle-sim: stopped", err=True)

@@ -1,0 +1,1197 @@
+"""The field node's link to its autopilot: MAVLink through pymavlink, driven by the node's loop.
+
+    ap = Autopilot.from_profile(load_profile("solo"))      # opens profile.autopilot.url
+    ap.wait_heartbeat(10.0)                                 # start-up only: bounded waits
+    ap.request_streams(10.0)
+    ap.wait_gps_fix(ap.gps_fix_timeout_s)
+    takeoff = ap.takeoff(5.0)                               # returns at once: a Command
+    while running:                                          # the node's 10 Hz loop
+        ap.poll()                                           # read, ACKs, retries, heartbeat
+        t = ap.telemetry                                    # lat, lon, alt_rel_m, armed, mode...
+        for event in ap.drain_events():                     # command results, heartbeat loss,
+            log(event)                                      # mode changes, pilot override
+        ap.goto(lat, lon, alt)                              # a setpoint: sent now, no ACK
+
+Any pymavlink connection string works: a serial device (`/dev/ttyUSB0` with `baud`), a pty,
+`tcp:HOST:PORT` (ArduPilot SITL's 5760), `udpin:0.0.0.0:14550`. Nothing here blocks the loop:
+`poll()` reads what the line holds (it waits at most its `timeout`, 0 by default), and every
+command is a small state machine that `poll()` moves on: send, await the COMMAND_ACK until a
+deadline, resend up to `max_attempts` times, then report. Only one COMMAND_LONG is in flight at
+a time because a COMMAND_ACK names only the command id, so two in flight could not be told
+apart; the rest wait in a FIFO queue. Safety commands (`land`, `rtl`, `hold`) go to the front
+of the queue. Setpoints (`goto`) have no ACK in MAVLink and are sent at once.
+
+Time comes from an injectable `clock` (default `time.monotonic`), so tests drive deadlines,
+retries and heartbeat ages without sleeping.
+
+The bytes on the line are decoded by `FrameReader`: pymavlink's parser, plus a rescan after
+each rejected frame. Plain pymavlink drops a whole "frame" when a stray magic byte in line noise
+announces one, losing up to 280 bytes of good frames behind it; the rescan recovers them, so
+garbage costs only the `bad_frames` counter.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import select
+import time
+from collections import Counter, deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import all as mavlink2
+
+from fieldkit.profiles import Profile
+
+COMPANION_COMPONENT = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER
+"""Our MAVLink component id: an onboard (companion) computer."""
+GCS_SYSTEM = 255
+"""Our MAVLink system id: ArduPilot's default SYSID_MYGCS, so its GCS failsafe watches us."""
+FORCE_ARM = 2989
+"""COMPONENT_ARM_DISARM param2 that skips ArduPilot's pre-arm checks."""
+FORCE_DISARM = 21196
+"""COMPONENT_ARM_DISARM param2 that disarms an ArduPilot vehicle even in the air."""
+RC_UNUSED = (0, 65535)
+"""RC channel values that mean "no such channel" in RC_CHANNELS."""
+
+# SET_POSITION_TARGET type_mask: use the position only (ignore velocity, acceleration, yaw
+# rate, and yaw unless given). Bits: 0-2 position, 3-5 velocity, 6-8 acceleration, 10 yaw,
+# 11 yaw rate.
+_MASK_POSITION_ONLY = 0b1101_1111_1000
+_MASK_POSITION_YAW = 0b1001_1111_1000
+
+# The messages `request_streams` asks for by SET_MESSAGE_INTERVAL: everything Telemetry uses.
+_STREAMED = (
+    mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT,
+    mavlink2.MAVLINK_MSG_ID_ATTITUDE,
+    mavlink2.MAVLINK_MSG_ID_SYS_STATUS,
+    mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS,
+    mavlink2.MAVLINK_MSG_ID_RC_CHANNELS,
+    mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+)
+# Home changes rarely (at arming): a slow stream is enough to learn it and notice a change.
+_HOME_RATE_HZ = 0.5
+# STATUSTEXT this recent is quoted in a command failure ("PreArm: Need 3D Fix").
+_STATUSTEXT_WINDOW_S = 2.0
+# A single poll reads at most this much, so that a flooded line cannot starve the loop.
+_MAX_READ_PER_POLL = 1 << 16
+_READ_CHUNK = 4096
+
+
+class AutopilotError(Exception):
+    """The autopilot link cannot do what was asked; the message says what and why."""
+
+
+def use_mavlink2(conn: Any, source_system: int, source_component: int) -> Any:
+    """Give a pymavlink connection our own MAVLink 2 codec (it parses v1 frames too).
+
+    pymavlink picks its codec from process-wide state (the MAVLINK20 variable at import) and
+    swaps it when the first v2 byte arrives; a stream that starts with v1 frames and later
+    carries v2 would then be lost. A codec of our own per connection avoids both problems.
+    Returns the codec; `conn.mav` is set to it as well.
+    """
+    mav = mavlink2.MAVLink(conn, srcSystem=source_system, srcComponent=source_component)
+    mav.robust_parsing = True
+    conn.mav = mav
+    conn.first_byte = False  # no automatic protocol switch: we already speak both
+    conn.WIRE_PROTOCOL_VERSION = "2.0"
+    return mav
+
+
+class FrameReader:
+    """MAVLink frames out of a byte stream, resynchronising after every rejected frame."""
+
+    def __init__(self, mav: Any) -> None:
+        """Decode with `mav`, a pymavlink `MAVLink` codec (robust parsing is switched on)."""
+        mav.robust_parsing = True
+        self.mav = mav
+        self.messages = 0  # frames decoded into known messages
+        self.bad_frames = 0  # runs of bytes outside frames, and frames that failed their checks
+        self.unknown_frames = 0  # frames of ids the dialect does not know (no CRC check)
+
+    def feed(self, data: bytes) -> list[Any]:
+        """Decode `data` (appended to what came before); returns the good messages in order."""
+        mav = self.mav
+        out: list[Any] = []
+        chunk = data
+        while True:
+            try:
+                m = mav.parse_char(chunk)
+            except Exception:  # a hostile frame must not stop the link
+                # pymavlink moved past the frame before decoding it: count it and go on.
+                self.bad_frames += 1
+                chunk = b""
+                continue
+            chunk = b""
+            if m is None:
+                return out
+            msg_id = m.get_msgId()
+            if msg_id == mavlink2.MAVLINK_MSG_ID_BAD_DATA:
+                self.bad_frames += 1
+                if not str(m.reason).startswith("Bad prefix"):
+                    # A stray magic byte made pymavlink swallow the bytes of a "frame": good
+                    # frames may start anywhere after that byte, so look again from there.
+                    self._rescan(m.get_msgbuf())
+            elif msg_id == mavlink2.MAVLINK_MSG_ID_UNKNOWN:
+                # No CRC check is possible without the message definition: it may be noise
+                # hiding good frames, so rescan its bytes as well.
+                self.unknown_frames += 1
+                self._rescan(m.get_msgbuf())
+            else:
+                self.messages += 1
+                out.append(m)
+
+    def _rescan(self, frame: bytes | bytearray) -> None:
+        """Put a rejected frame's bytes, but its first, back in front of the parser."""
+        mav = self.mav
+        rest = mav.buf[mav.buf_index :]
+        mav.buf = bytearray(frame[1:]) + rest
+        mav.buf_index = 0
+        mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
+
+
+@dataclass
+class Telemetry:
+    """The autopilot's latest state as the link has seen it; None until reported."""
+
+    lat: float | None = None  # degrees, GLOBAL_POSITION_INT (the autopilot's fused estimate)
+    lon: float | None = None
+    alt_rel_m: float | None = None  # above home
+    alt_msl_m: float | None = None
+    heading_deg: float | None = None  # 0..360 from north, clockwise
+    yaw_rad: float | None = None  # ATTITUDE yaw: 0 north, positive toward east
+    vel_north_mps: float | None = None
+    vel_east_mps: float | None = None
+    vel_down_mps: float | None = None
+    ground_speed_mps: float | None = None
+    battery_voltage_v: float | None = None
+    battery_current_a: float | None = None
+    battery_percent: float | None = None
+    armed: bool = False
+    mode: str = "UNKNOWN"  # pymavlink's name for the custom mode, e.g. "GUIDED"
+    custom_mode: int | None = None
+    mav_type: int | None = None  # HEARTBEAT.type: 2 quadrotor, 10 ground rover...
+    autopilot_type: int | None = None  # HEARTBEAT.autopilot: 3 ArduPilot, 12 PX4
+    system_status: int | None = None  # MAV_STATE
+    landed_state: int | None = None  # 1 on ground, 2 in air, 3 taking off, 4 landing
+    gps_fix_type: int = 0  # 0-1 no fix, 2 2D, 3 3D, 4+ DGPS/RTK
+    satellites: int | None = None
+    gps_lat: float | None = None  # the raw GPS fix (GPS_RAW_INT), degrees
+    gps_lon: float | None = None
+    rc_channels: tuple[int, ...] = ()  # PWM in microseconds, channel 1 first
+    rc_rssi: int | None = None
+    rc_override: bool = False  # the override channel is at or above the override PWM
+    home: tuple[float, float, float] | None = None  # lat, lon (degrees), alt MSL (m)
+    last_heartbeat: float | None = None  # link clock time of the last vehicle heartbeat
+    last_message: float | None = None  # link clock time of the last message from the vehicle
+    statustext: str | None = None  # the last STATUSTEXT
+
+    def copy(self) -> Telemetry:
+        """An independent snapshot (`poll()` keeps updating the link's own object)."""
+        return dataclasses.replace(self)
+
+
+class CommandStatus(StrEnum):
+    """Where a command stands."""
+
+    QUEUED = "queued"  # waiting for the one in flight, or for a first heartbeat
+    ACTIVE = "active"  # sent, waiting for its COMMAND_ACK
+    DONE = "done"  # accepted (every step of it)
+    FAILED = "failed"  # refused, or no ACK after every attempt; see `error`
+    CANCELLED = "cancelled"
+
+
+_FINISHED = (CommandStatus.DONE, CommandStatus.FAILED, CommandStatus.CANCELLED)
+
+
+@dataclass(eq=False)
+class _Step:
+    """One message of a command: sent, and unless `ack` is None, acknowledged."""
+
+    label: str  # what failed, in messages: "MAV_CMD_COMPONENT_ARM_DISARM"
+    send: Callable[[int], None]  # sends it; argument: the confirmation (0, then retries)
+    ack: int | None  # the MAV_CMD id to await in COMMAND_ACK; None for fire and forget
+    on_accept: Callable[[], None] | None = None
+    optional: bool = False  # a refusal is a warning, not a failure of the command
+
+
+class Command:
+    """One request to the autopilot: returned at once, moved on by `Autopilot.poll()`."""
+
+    def __init__(
+        self,
+        cid: int,
+        name: str,
+        steps: Sequence[_Step],
+        created: float,
+        on_done: Callable[[Command], None] | None = None,
+    ) -> None:
+        """A queued command; the link builds these."""
+        self.id = cid
+        self.name = name
+        self.status = CommandStatus.QUEUED
+        self.attempts = 0  # sends of the current (or last) step
+        self.result: int | None = None  # the last MAV_RESULT received
+        self.error: str | None = None
+        self.warnings: list[str] = []  # refusals of optional steps
+        self.created = created
+        self.finished: float | None = None
+        self.on_done = on_done
+        self._steps = list(steps)
+        self._index = 0
+        self._deadline = 0.0
+
+    @property
+    def done(self) -> bool:
+        """Whether it is over, whatever the outcome."""
+        return self.status in _FINISHED
+
+    @property
+    def ok(self) -> bool:
+        """Whether it was accepted."""
+        return self.status is CommandStatus.DONE
+
+    @property
+    def result_name(self) -> str | None:
+        """The last MAV_RESULT by name, e.g. "MAV_RESULT_DENIED"."""
+        return None if self.result is None else _result_name(self.result)
+
+    def __repr__(self) -> str:
+        """E.g. `<Command 3 arm: failed (arm refused: MAV_RESULT_FAILED)>`."""
+        tail = f" ({self.error})" if self.error else ""
+        return f"<Command {self.id} {self.name}: {self.status.value}{tail}>"
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something the node should know (and log): see `Autopilot.drain_events`."""
+
+    time: float  # link clock
+    kind: str  # "command", "heartbeat", "mode", "armed", "override", "statustext", "link"
+    text: str
+    command: Command | None = None
+
+
+def _result_name(result: int) -> str:
+    """MAV_RESULT number to name."""
+    entry = mavlink2.enums["MAV_RESULT"].get(result)
+    return entry.name if entry is not None else f"MAV_RESULT({result})"
+
+
+def _cmd_name(cmd: int) -> str:
+    """MAV_CMD number to name."""
+    entry = mavlink2.enums["MAV_CMD"].get(cmd)
+    return entry.name if entry is not None else f"MAV_CMD({cmd})"
+
+
+def _is_vehicle_heartbeat(msg: Any) -> bool:
+    """A heartbeat from an autopilot, not from a GCS, gimbal, camera or radio."""
+    if msg.autopilot == mavlink2.MAV_AUTOPILOT_INVALID:
+        return False
+    return msg.type not in (
+        mavlink2.MAV_TYPE_GCS,
+        mavlink2.MAV_TYPE_GIMBAL,
+        mavlink2.MAV_TYPE_ADSB,
+        mavlink2.MAV_TYPE_ONBOARD_CONTROLLER,
+        mavlink2.MAV_TYPE_CAMERA,
+    )
+
+
+class Autopilot:
+    """The node's MAVLink link to one autopilot: telemetry in, checked commands out."""
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        baud: int = 57600,
+        profile: Profile | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        source_system: int = GCS_SYSTEM,
+        source_component: int = COMPANION_COMPONENT,
+        ack_timeout_s: float = 1.0,
+        max_attempts: int = 3,
+        queue_timeout_s: float = 10.0,
+        heartbeat_interval_s: float | None = 1.0,
+        heartbeat_timeout_s: float | None = None,
+        override_channel: int = 5,
+        override_pwm: int = 1800,
+    ) -> None:
+        """Open `url` (any pymavlink connection string); raises AutopilotError if it fails.
+
+        `profile` gives the mode names, the heartbeat timeout and whether the robot is a
+        ground robot (no takeoff). `heartbeat_interval_s`: how often `poll()` sends our own
+        heartbeat (None: only `send_heartbeat()`). RC channel `override_channel` at or
+        above `override_pwm` microseconds reads as the pilot taking over.
+        """
+        if max_attempts < 1:
+            raise ValueError("max_attempts must be >= 1")
+        self.url = url
+        self.profile = profile
+        self._clock = clock
+        self.ack_timeout_s = ack_timeout_s
+        self.max_attempts = max_attempts
+        self.queue_timeout_s = queue_timeout_s
+        self.heartbeat_interval_s = heartbeat_interval_s
+        ap = profile.autopilot if profile is not None else None
+        if heartbeat_timeout_s is None:
+            heartbeat_timeout_s = ap.heartbeat_timeout_s if ap is not None else 3.0
+        self.heartbeat_timeout_s = heartbeat_timeout_s
+        self.gps_fix_timeout_s = ap.gps_fix_timeout_s if ap is not None else 120.0
+        self.ground = profile.is_ground if profile is not None else False
+        self.flavour = ap.flavour if ap is not None else "ardupilot"
+        if ap is not None:
+            self.guided_mode, self.loiter_mode = ap.guided_mode, ap.loiter_mode
+            self.land_mode, self.rtl_mode = ap.land_mode, ap.rtl_mode
+        elif self.ground:
+            self.guided_mode, self.loiter_mode, self.land_mode, self.rtl_mode = (
+                "GUIDED",
+                "HOLD",
+                "HOLD",
+                "RTL",
+            )
+        else:
+            self.guided_mode, self.loiter_mode, self.land_mode, self.rtl_mode = (
+                "GUIDED",
+                "LOITER",
+                "LAND",
+                "RTL",
+            )
+        self.override_channel = override_channel
+        self.override_pwm = override_pwm
+        self.source_system = source_system
+        self.source_component = source_component
+
+        try:
+            self._conn = mavutil.mavlink_connection(
+                url,
+                baud=baud,
+                source_system=source_system,
+                source_component=source_component,
+            )
+        except Exception as e:  # serial, socket and value errors alike
+            raise AutopilotError(
+                f"cannot open the autopilot link {url}: {describe_error(e)}"
+            ) from e
+        self._mav = use_mavlink2(self._conn, source_system, source_component)
+        self._mav.file = self  # our write() counts bytes and survives a dead port
+        self._reader = FrameReader(self._mav)
+
+        self.telemetry = Telemetry()
+        self.target_system: int | None = None
+        self.target_component: int | None = None
+        self.message_counts: Counter[str] = Counter()
+        self.bytes_received = 0
+        self.bytes_sent = 0
+        self.link_errors = 0
+        self.events: deque[Event] = deque(maxlen=1000)
+        self.mode_override = False  # the mode changed without the node asking
+        self.last_target: tuple[float, float, float] | None = None  # last goto (lat, lon, alt)
+        self._queue: deque[Command] = deque()
+        self._active: Command | None = None
+        self._next_id = 1
+        self._commanded_mode: str | None = None
+        self._hb_lost = False
+        self._last_hb_sent: float | None = None
+        self._statustexts: deque[tuple[float, str]] = deque(maxlen=8)
+        self._link_failing = False
+        self._rc_seen_full = False  # RC_CHANNELS seen: ignore the older RC_CHANNELS_RAW
+        self._t0 = clock()
+
+    @classmethod
+    def from_profile(cls, profile: Profile, url: str | None = None, **kwargs: Any) -> Autopilot:
+        """A link as the profile says (`autopilot.url`, `autopilot.baud`), or to `url`."""
+        if profile.autopilot.flavour == "dji":
+            raise AutopilotError(
+                f"{profile.name}: the DJI Onboard SDK does not speak MAVLink (flavour dji)"
+            )
+        return cls(
+            url if url is not None else profile.autopilot.url,
+            baud=profile.autopilot.baud,
+            profile=profile,
+            **kwargs,
+        )
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def close(self) -> None:
+        """Close the port; pending commands are cancelled."""
+        self.cancel_all("link closed")
+        try:
+            self._conn.close()
+        except Exception:  # closing a dead port must not fail
+            pass
+
+    def __enter__(self) -> Autopilot:
+        """Use as a context manager: closed on exit."""
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        """Close the link."""
+        self.close()
+
+    def fileno(self) -> int | None:
+        """The descriptor to select() on (None for transports without one)."""
+        fd = getattr(self._conn, "fd", None)
+        return fd if isinstance(fd, int) and fd >= 0 else None
+
+    # pymavlink's codec writes through this (we are its `file`).
+    def write(self, buf: bytes | bytearray) -> None:
+        """Send raw bytes on the link (used by the codec); errors are counted, not raised."""
+        try:
+            self._conn.write(bytes(buf))
+        except Exception as e:  # a dead port costs a counter, not the loop
+            self._link_error(f"write failed: {describe_error(e)}")
+            return
+        self.bytes_sent += len(buf)
+
+    # ------------------------------------------------------------------ state views
+
+    @property
+    def messages(self) -> int:
+        """Good messages decoded so far (from every system on the link)."""
+        return self._reader.messages
+
+    @property
+    def bad_frames(self) -> int:
+        """Rejected frames and runs of garbage bytes (bad CRC, bad length, noise)."""
+        return self._reader.bad_frames
+
+    @property
+    def unknown_frames(self) -> int:
+        """Frames with message ids our dialect does not know."""
+        return self._reader.unknown_frames
+
+    @property
+    def pending(self) -> tuple[Command, ...]:
+        """Commands not finished yet: the one in flight first, then the queue."""
+        head = (self._active,) if self._active is not None else ()
+        return head + tuple(self._queue)
+
+    def heartbeat_age(self) -> float:
+        """Seconds since the last vehicle heartbeat (infinity before the first)."""
+        last = self.telemetry.last_heartbeat
+        return math.inf if last is None else max(0.0, self._clock() - last)
+
+    @property
+    def heartbeat_lost(self) -> bool:
+        """Whether the heartbeat is older than the timeout (or never came)."""
+        return self.heartbeat_age() > self.heartbeat_timeout_s
+
+    @property
+    def pilot_override(self) -> bool:
+        """Whether someone else has the vehicle: RC override channel high, or a mode change
+        the node did not ask for (pilot's mode switch, the autopilot's own failsafe)."""
+        return self.telemetry.rc_override or self.mode_override
+
+    def drain_events(self) -> list[Event]:
+        """The events since the last call, oldest first."""
+        out = list(self.events)
+        self.events.clear()
+        return out
+
+    def _event(self, kind: str, text: str, command: Command | None = None) -> None:
+        self.events.append(Event(self._clock(), kind, text, command))
+
+    def _link_error(self, text: str) -> None:
+        self.link_errors += 1
+        if not self._link_failing:
+            # Log the first error of a streak only: a dead port fails on every poll.
+            self._link_failing = True
+            self._event("link", f"{self.url}: {text}")
+
+    # ------------------------------------------------------------------ the loop
+
+    def poll(self, timeout: float = 0.0) -> int:
+        """Read and handle everything available, then move commands and heartbeats on.
+
+        Waits up to `timeout` seconds for the first byte when nothing is there yet (0: not
+        at all). Returns the number of good messages handled.
+        """
+        n = self._read(timeout)
+        now = self._clock()
+        self._tick(now)
+        return n
+
+    def _read(self, timeout: float) -> int:
+        conn = self._conn
+        fd = self.fileno()
+        if timeout > 0 and fd is not None:
+            try:
+                select.select([fd], [], [], timeout)
+            except (OSError, ValueError) as e:
+                self._link_error(f"select failed: {describe_error(e)}")
+                return 0
+        handled = 0
+        total = 0
+        while total < _MAX_READ_PER_POLL:
+            try:
+                data = conn.recv(_READ_CHUNK)
+            except Exception as e:  # pyserial and socket errors alike: the link failed
+                self._link_error(f"read failed: {describe_error(e)}")
+                break
+            if not data:
+                break
+            if isinstance(data, str):  # some pymavlink transports return "" or str
+                data = data.encode("latin-1")
+            self._link_failing = False
+            total += len(data)
+            self.bytes_received += len(data)
+            now = self._clock()
+            for msg in self._reader.feed(data):
+                self._handle(msg, now)
+                handled += 1
+            if fd is None:
+                break  # no descriptor: cannot tell "more" from "no more"; next poll reads on
+        return handled
+
+    def _tick(self, now: float) -> None:
+        if self.heartbeat_interval_s is not None and (
+            self._last_hb_sent is None or now - self._last_hb_sent >= self.heartbeat_interval_s
+        ):
+            self.send_heartbeat()
+        last = self.telemetry.last_heartbeat
+        if last is not None:
+            age = now - last
+            if age > self.heartbeat_timeout_s and not self._hb_lost:
+                self._hb_lost = True
+                self._event("heartbeat", f"autopilot heartbeat lost: none for {age:.1f} s")
+            elif age <= self.heartbeat_timeout_s and self._hb_lost:
+                self._hb_lost = False
+                self._event("heartbeat", "autopilot heartbeat back")
+        self._advance(now)
+
+    def send_heartbeat(self) -> None:
+        """Send our heartbeat now (a GCS/companion one; `poll()` does it every second)."""
+        self._last_hb_sent = self._clock()
+        self._mav.heartbeat_send(
+            mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, mavlink2.MAV_STATE_ACTIVE
+        )
+
+    # ------------------------------------------------------------------ blocking helpers
+
+    def wait_heartbeat(
+        self,
+        timeout: float,
+        *,
+        idle: Callable[[], None] | None = None,
+        poll_interval: float = 0.05,
+    ) -> Telemetry:
+        """Poll until a vehicle heartbeat arrives; AutopilotError after `timeout` seconds.
+
+        For start-up, not for the loop. `idle` is called between polls (a test steps its
+        simulated vehicle there); each poll waits up to `poll_interval` for data.
+        """
+        ok = self._wait(
+            lambda: self.telemetry.last_heartbeat is not None, timeout, idle, poll_interval
+        )
+        if not ok:
+            raise AutopilotError(
+                f"no heartbeat from the autopilot after {timeout:g} s on {self.url} "
+                f"({self.bytes_received} bytes received, {self.bad_frames} bad frames)"
+            )
+        return self.telemetry
+
+    def wait_gps_fix(
+        self,
+        timeout: float,
+        *,
+        min_fix: int = 3,
+        idle: Callable[[], None] | None = None,
+        poll_interval: float = 0.05,
+    ) -> Telemetry:
+        """Poll until the GPS fix type reaches `min_fix` (3: 3D); AutopilotError on timeout."""
+        ok = self._wait(
+            lambda: self.telemetry.gps_fix_type >= min_fix, timeout, idle, poll_interval
+        )
+        if not ok:
+            t = self.telemetry
+            if t.satellites is None:
+                detail = "no GPS_RAW_INT received"
+            else:
+                detail = f"fix type {t.gps_fix_type}, {t.satellites} satellites"
+            raise AutopilotError(f"no GPS fix after {timeout:g} s ({detail})")
+        return self.telemetry
+
+    def wait_command(
+        self,
+        command: Command,
+        timeout: float,
+        *,
+        idle: Callable[[], None] | None = None,
+        poll_interval: float = 0.05,
+    ) -> Command:
+        """Poll until `command` is over; AutopilotError if it failed or is still pending."""
+        ok = self._wait(lambda: command.done, timeout, idle, poll_interval)
+        if not ok:
+            raise AutopilotError(f"{command.name}: not finished after {timeout:g} s")
+        if not command.ok:
+            raise AutopilotError(command.error or f"{command.name}: {command.status.value}")
+        return command
+
+    def _wait(
+        self,
+        cond: Callable[[], bool],
+        timeout: float,
+        idle: Callable[[], None] | None,
+        poll_interval: float,
+    ) -> bool:
+        deadline = self._clock() + timeout
+        while True:
+            self.poll(poll_interval)
+            if cond():
+                return True
+            if self._clock() >= deadline:
+                return False
+            if idle is not None:
+                idle()
+
+    # ------------------------------------------------------------------ incoming
+
+    def _handle(self, msg: Any, now: float) -> None:
+        name = msg.get_type()
+        self.message_counts[name] += 1
+        src = msg.get_srcSystem()
+        if name == "HEARTBEAT":
+            if self.target_system is None and _is_vehicle_heartbeat(msg):
+                self.target_system, self.target_component = src, msg.get_srcComponent()
+                self._event("heartbeat", f"autopilot found: system {src}, {_describe_hb(msg)}")
+            if (src, msg.get_srcComponent()) == (self.target_system, self.target_component):
+                self._on_heartbeat(msg, now)
+            return
+        if src != self.target_system:
+            return  # another system on the same line: a radio, a second GCS
+        t = self.telemetry
+        t.last_message = now
+        handler = _HANDLERS.get(name)
+        if handler is not None:
+            handler(self, msg, now)
+
+    def _on_heartbeat(self, m: Any, now: float) -> None:
+        t = self.telemetry
+        t.last_heartbeat = now
+        t.last_message = now
+        armed = bool(m.base_mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
+        mode = mavutil.mode_string_v10(m)
+        t.mav_type, t.autopilot_type = m.type, m.autopilot
+        t.custom_mode, t.system_status = m.custom_mode, m.system_status
+        if armed != t.armed:
+            t.armed = armed
+            self._event("armed", "armed" if armed else "disarmed")
+        if mode != t.mode:
+            old, t.mode = t.mode, mode
+            self._event("mode", f"mode {old} -> {mode}")
+        taken = self._commanded_mode is not None and mode != self._commanded_mode
+        if taken and not self.mode_override:
+            self._event(
+                "override",
+                f"mode changed to {mode} without the node (it asked for "
+                f"{self._commanded_mode}): pilot or autopilot failsafe",
+            )
+        self.mode_override = taken
+
+    def _on_global_position(self, m: Any, now: float) -> None:
+        t = self.telemetry
+        if m.lat == 0 and m.lon == 0:
+            return  # ArduPilot reports 0, 0 until it has a position
+        t.lat, t.lon = m.lat * 1e-7, m.lon * 1e-7
+        t.alt_msl_m, t.alt_rel_m = m.alt * 1e-3, m.relative_alt * 1e-3
+        t.vel_north_mps, t.vel_east_mps, t.vel_down_mps = m.vx * 0.01, m.vy * 0.01, m.vz * 0.01
+        t.ground_speed_mps = math.hypot(m.vx, m.vy) * 0.01
+        t.heading_deg = None if m.hdg == 65535 else m.hdg * 0.01
+
+    def _on_gps_raw(self, m: Any, now: float) -> None:
+        t = self.telemetry
+        t.gps_fix_type = m.fix_type
+        t.satellites = None if m.satellites_visible == 255 else m.satellites_visible
+        if m.fix_type >= 2:
+            t.gps_lat, t.gps_lon = m.lat * 1e-7, m.lon * 1e-7
+
+    def _on_attitude(self, m: Any, now: float) -> None:
+        self.telemetry.yaw_rad = m.yaw
+
+    def _on_vfr_hud(self, m: Any, now: float) -> None:
+        self.telemetry.ground_speed_mps = m.groundspeed
+
+    def _on_sys_status(self, m: Any, now: float) -> None:
+        t = self.telemetry
+        if m.voltage_battery != 65535:
+            t.battery_voltage_v = m.voltage_battery * 1e-3
+        t.battery_current_a = None if m.current_battery == -1 else m.current_battery * 0.01
+        t.battery_percent = None if m.battery_remaining == -1 else float(m.battery_remaining)
+
+    def _on_battery_status(self, m: Any, now: float) -> None:
+        if m.id != 0:
+            return  # the first battery is the one SYS_STATUS reports too
+        t = self.telemetry
+        cells = [v for v in m.voltages if v != 65535]
+        if cells:
+            # One entry is the whole pack for most ArduPilot monitors; cells add up otherwise.
+            t.battery_voltage_v = sum(cells) * 1e-3
+        if m.current_battery != -1:
+            t.battery_current_a = m.current_battery * 0.01
+        if m.battery_remaining != -1:
+            t.battery_percent = float(m.battery_remaining)
+
+    def _on_home(self, m: Any, now: float) -> None:
+        self.telemetry.home = (m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3)
+
+    def _on_extended_state(self, m: Any, now: float) -> None:
+        self.telemetry.landed_state = m.landed_state or None
+
+    def _on_rc_channels(self, m: Any, now: float) -> None:
+        self._rc_seen_full = True
+        n = min(m.chancount, 18)
+        self._set_rc(tuple(getattr(m, f"chan{i}_raw") for i in range(1, n + 1)), m.rssi)
+
+    def _on_rc_channels_raw(self, m: Any, now: float) -> None:
+        if self._rc_seen_full or m.port != 0:
+            return
+        raw = [getattr(m, f"chan{i}_raw") for i in range(1, 9)]
+        while raw and raw[-1] in RC_UNUSED:
+            raw.pop()
+        self._set_rc(tuple(raw), m.rssi)
+
+    def _set_rc(self, channels: tuple[int, ...], rssi: int) -> None:
+        t = self.telemetry
+        t.rc_channels = channels
+        t.rc_rssi = None if rssi == 255 else rssi
+        i = self.override_channel - 1
+        high = 0 <= i < len(channels) and channels[i] not in RC_UNUSED
+        high = high and channels[i] >= self.override_pwm
+        if high and not t.rc_override:
+            self._event(
+                "override",
+                f"RC channel {self.override_channel} at {channels[i]} us: the pilot has control",
+            )
+        elif t.rc_override and not high:
+            self._event("override", f"RC channel {self.override_channel} released")
+        t.rc_override = high
+
+    def _on_statustext(self, m: Any, now: float) -> None:
+        text = m.text if isinstance(m.text, str) else bytes(m.text).decode("ascii", "replace")
+        text = text.rstrip("\x00").strip()
+        self.telemetry.statustext = text
+        self._statustexts.append((now, text))
+        self._event("statustext", text)
+
+    def _on_ack(self, m: Any, now: float) -> None:
+        cmd = self._active
+        if cmd is None or cmd.status is not CommandStatus.ACTIVE:
+            return
+        ts = getattr(m, "target_system", 0)
+        if ts not in (0, self.source_system):
+            return  # the answer to another GCS's command
+        step = cmd._steps[cmd._index]
+        if step.ack is None or m.command != step.ack:
+            return
+        cmd.result = m.result
+        if m.result == mavlink2.MAV_RESULT_ACCEPTED:
+            if step.on_accept is not None:
+                step.on_accept()
+            self._next_step(cmd, now)
+        elif m.result == mavlink2.MAV_RESULT_IN_PROGRESS:
+            cmd._deadline = now + self.ack_timeout_s  # still working: keep waiting
+        else:
+            reason = f"{step.label} refused: {_result_name(m.result)}"
+            recent = [txt for at, txt in self._statustexts if now - at <= _STATUSTEXT_WINDOW_S]
+            if recent:
+                reason += f" ({recent[-1]})"
+            self._step_failed(cmd, reason, now)
+
+    # ------------------------------------------------------------------ command machine
+
+    def _new(
+        self,
+        name: str,
+        steps: Sequence[_Step],
+        on_done: Callable[[Command], None] | None,
+        urgent: bool = False,
+    ) -> Command:
+        cmd = Command(self._next_id, name, steps, self._clock(), on_done)
+        self._next_id += 1
+        if urgent:
+            self._queue.appendleft(cmd)
+        else:
+            self._queue.append(cmd)
+        # Start it now if the line is free: a command issued after poll() leaves this tick.
+        self._advance(self._clock())
+        return cmd
+
+    def _refused(
+        self, name: str, reason: str, on_done: Callable[[Command], None] | None
+    ) -> Command:
+        cmd = Command(self._next_id, name, (), self._clock(), on_done)
+        self._next_id += 1
+        self._finish(cmd, CommandStatus.FAILED, f"{name} refused: {reason}")
+        return cmd
+
+    def _advance(self, now: float) -> None:
+        while True:
+            cmd = self._active
+            if cmd is None:
+                if not self._queue:
+                    return
+                head = self._queue[0]
+                if self.target_system is None:
+                    if now - head.created >= self.queue_timeout_s:
+                        self._queue.popleft()
+                        self._finish(
+                            head,
+                            CommandStatus.FAILED,
+                            f"{head.name}: not sent, no heartbeat from the autopilot "
+                            f"after {self.queue_timeout_s:g} s",
+                        )
+                        continue
+                    return
+                self._queue.popleft()
+                self._active = cmd = head
+                cmd.status = CommandStatus.ACTIVE
+                cmd._index = 0
+                if not self._start_step(cmd, now):
+                    continue
+            step = cmd._steps[cmd._index]
+            if now < cmd._deadline:
+                return
+            if cmd.attempts < self.max_attempts:
+                self._send_step(cmd, step, now)
+                return
+            self._step_failed(
+                cmd,
+                f"{step.label}: no COMMAND_ACK after {cmd.attempts} "
+                f"{'try' if cmd.attempts == 1 else 'tries'}",
+                now,
+            )
+            # _step_failed moved on to the next step or command: look at it again.
+
+    def _start_step(self, cmd: Command, now: float) -> bool:
+        """Send the current step (and finish the fire-and-forget ones); False when over."""
+        while cmd._index < len(cmd._steps):
+            step = cmd._steps[cmd._index]
+            cmd.attempts = 0
+            self._send_step(cmd, step, now)
+            if step.ack is not None:
+                return True
+            cmd._index += 1
+        self._finish(cmd, CommandStatus.DONE)
+        return False
+
+    def _send_step(self, cmd: Command, step: _Step, now: float) -> None:
+        step.send(cmd.attempts)
+        cmd.attempts += 1
+        cmd._deadline = now + self.ack_timeout_s
+
+    def _next_step(self, cmd: Command, now: float) -> None:
+        cmd._index += 1
+        if self._start_step(cmd, now):
+            return
+        self._advance(now)
+
+    def _step_failed(self, cmd: Command, reason: str, now: float) -> None:
+        step = cmd._steps[cmd._index]
+        if step.optional:
+            cmd.warnings.append(reason)
+            self._next_step(cmd, now)
+            return
+        self._finish(cmd, CommandStatus.FAILED, f"{cmd.name} failed: {reason}")
+        self._advance(now)
+
+    def _finish(self, cmd: Command, status: CommandStatus, error: str | None = None) -> None:
+        cmd.status = status
+        cmd.error = error
+        cmd.finished = self._clock()
+        if self._active is cmd:
+            self._active = None
+        if status is CommandStatus.DONE:
+            text = f"{cmd.name}: done"
+            if cmd.warnings:
+                text += f" ({len(cmd.warnings)} optional part(s) refused: {cmd.warnings[0]})"
+        else:
+            text = error or f"{cmd.name}: {status.value}"
+        self._event("command", text, cmd)
+        if cmd.on_done is not None:
+            cmd.on_done(cmd)
+
+    def cancel(self, command: Command, reason: str = "cancelled") -> None:
+        """Stop waiting for `command` (an ACK that comes later is ignored)."""
+        if command.done:
+            return
+        if command in self._queue:
+            self._queue.remove(command)
+        self._finish(command, CommandStatus.CANCELLED, f"{command.name}: {reason}")
+        self._advance(self._clock())
+
+    def cancel_all(self, reason: str = "cancelled") -> None:
+        """Cancel every pending command."""
+        for cmd in self.pending:
+            self.cancel(cmd, reason)
+
+    # ------------------------------------------------------------------ commands
+
+    def _long_step(
+        self,
+        cmd_id: int,
+        params: Sequence[float] = (),
+        *,
+        on_accept: Callable[[], None] | None = None,
+        optional: bool = False,
+    ) -> _Step:
+        p = [float(x) for x in params][:7]
+        p += [0.0] * (7 - len(p))
+
+        def send(confirmation: int) -> None:
+            self._mav.command_long_send(
+                self.target_system or 0,
+                self.target_component or 0,
+                cmd_id,
+                min(confirmation, 255),
+                *p,
+            )
+
+        return _Step(_cmd_name(cmd_id), send, cmd_id, on_accept, optional)
+
+    def command(
+        self,
+        cmd_id: int,
+        params: Sequence[float] = (),
+        *,
+        name: str | None = None,
+        on_done: Callable[[Command], None] | None = None,
+    ) -> Command:
+        """Any COMMAND_LONG (up to 7 params), acknowledged and retried like the others."""
+        return self._new(name or _cmd_name(cmd_id), [self._long_step(cmd_id, params)], on_done)
+
+    def arm(
+        self, *, force: bool = False, on_done: Callable[[Command], None] | None = None
+    ) -> Command:
+        """Arm the motors (`force` skips ArduPilot's pre-arm checks)."""
+        step = self._long_step(
+            mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, (1, FORCE_ARM if force else 0)
+        )
+        return self._new("arm", [step], on_done)
+
+    def disarm(
+        self, *, force: bool = False, on_done: Callable[[Command], None] | None = None
+    ) -> Command:
+        """Disarm; the autopilot refuses in the air unless `force` (motors stop: it falls)."""
+        step = self._long_step(
+            mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, (0, FORCE_DISARM if force else 0)
+        )
+        return self._new("disarm", [step], on_done)
+
+    def set_mode(self, name: str, *, on_done: Callable[[Command], None] | None = None) -> Command:
+        """Switch to the flight mode `name` (e.g. "GUIDED"), as pymavlink names modes."""
+        step = self._mode_step(name)
+        if isinstance(step, str):
+            return self._refused(f"set_mode {name}", step, on_done)
+        return self._new(f"set_mode {name}", [step], on_done)
+
+    def _mode_step(self, name: str) -> _Step | str:
+        """The DO_SET_MODE step for a mode name, or why there is none."""
+        px4 = self.flavour == "px4" or self.telemetry.autopilot_type == mavlink2.MAV_AUTOPILOT_PX4
+        if px4:
+            entry = mavutil.px4_map.get(name)
+            if entry is None:
+                known = ", ".join(sorted(mavutil.px4_map))
+                return f"unknown PX4 mode {name!r} (known: {known})"
+            params: tuple[float, ...] = entry
+        else:
+            mav_type = self.telemetry.mav_type
+            if mav_type is None:
+                ground = mavlink2.MAV_TYPE_GROUND_ROVER
+                mav_type = ground if self.ground else mavlink2.MAV_TYPE_QUADROTOR
+            mapping = mavutil.mode_mapping_byname(mav_type)
+            if mapping is None:
+                return f"no ArduPilot mode table for vehicle type {mav_type}"
+            if name not in mapping:
+                return f"unknown mode {name!r} (known: {', '.join(sorted(mapping))})"
+            params = (mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, mapping[name])
+
+        def accepted() -> None:
+            # From now on a different mode in the heartbeat means someone else switched.
+            self._commanded_mode = name
+            self.mode_override = False
+
+        step = self._long_step(mavlink2.MAV_CMD_DO_SET_MODE, params, on_accept=accepted)
+        step.label = f"mode {name}"
+        return step
+
+    def takeoff(self, alt: float, *, on_done: Callable[[Command], None] | None = None) -> Command:
+        """Climb to `alt` metres above home: the guided mode, arm, then MAV_CMD_NAV_TAKEOFF."""
+        name = f"takeoff {alt:g}"
+        if self.ground:
+            who = self.profile.name if self.profile is not None else "this vehicle"
+            return self._refused(name, f"{who} is a ground robot: it does not fly", on_done)
+        if not (math.isfinite(alt) and alt > 0.0):
+            return self._refused(name, f"altitude must be > 0 m, got {alt}", on_done)
+        mode = self._mode_step(self.guided_mode)
+        if isinstance(mode, str):
+            return self._refused(name, mode, on_done)
+        steps = [
+            mode,
+            self._long_step(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, (1, 0)),
+            self._long_step(mavlink2.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan, 0, 0, alt)),
+        ]
+        return self._new(name, steps, on_done)
+
+    def land(self, *, on_done: Callable[[Command], None] | None = None) -> Command:
+        """Land where it is (the profile's land mode; a ground robot holds). Goes first."""
+        return self._mode_command("land", self.land_mode, on_done)
+
+    def rtl(self, *, on_done: Callable[[Command], None] | None = None) -> Command:
+        """Return to launch (and land, for a UAV). Goes first in the queue."""
+        return self._mode_command("rtl", self.rtl_mode, on_done)
+
+    def hold(
+        self, *, keep_guided: bool = False, on_done: Callable[[Command], None] | None = None
+    ) -> Command:
+        """Stop and keep position: the loiter/hold mode, or with `keep_guided` a position
+        target at the current position (the node keeps control). Goes first in the queue."""
+        if not keep_guided:
+            return self._mode_command("hold", self.loiter_mode, on_done)
+        t = self.telemetry
+        if t.lat is None or t.lon is None:
+            return self._refused("hold", "position unknown", on_done)
+        return self.goto(t.lat, t.lon, t.alt_rel_m or 0.0, on_done=on_done)
+
+    def _mode_command(
+        self, name: str, mode: str, on_done: Callable[[Command], None] | None
+    ) -> Command:
+        step = self._mode_step(mode)
+        if isinstance(step, str):
+            return self._refused(name, step, on_done)
+        return self._new(f"{name} ({mode})", [step], on_done, urgent=True)
+
+    def goto(
+        self,
+        lat: float,
+        lon: float,
+        alt: float,
+        *,
+        yaw_deg: float | None = None,
+        on_done: Callable[[Command], None] | None = None,
+    ) -> Command:
+        """Fly (drive) to an absolute point: SET_POSITION_TARGET_GLOBAL_INT, sent at once.
+
+        `alt` is metres above home (relative-altitude frame); ground robots send 0. MAVLink
+        has no ACK for setpoints: the command is done once sent, and the autopilot holds
+        that absolute target (in its guided mode) until told otherwise. `yaw_deg`, if given,
+        is the heading to face (0 north, clockwise); otherwise the heading is left alone.
+        """
+        name = f"goto {lat:.7f},{lon:.7f},{alt:g}"
+        if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(alt)):
+            return self._refused(name, "non-finite coordinates", on_done)
+        if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+            return self._refused(name, "latitude or longitude out of range", on_done)
+        if self.target_system is None:
+            return self._refused(name, "no heartbeat from the autopilot yet", on_done)
+        if self.ground:
+            alt = 0.0
+        mask = _MASK_POSITION_ONLY if yaw_deg is None else _MASK_POSITION_YAW
+        yaw = 0.0 if yaw_deg is None else math.radians(yaw_deg)
+        boot_ms = int((self._clock() - self._t0) * 1000) & 0xFFFFFFFF
+        self._mav.set_position_target_global_int_send(
+            boot_ms,
+            self.target_system,
+            self.target_component or 0,
+            mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            mask,
+            int(round(lat * 1e7)),
+            int(round(lon * 1e7)),
+            float(alt),
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            yaw,
+            0.0,
+        )
+        self.last_target = (lat, lon, alt)
+        cmd = Command(self._next_id, name, (), self._clock(), on_done)
+        self._next_id += 1
+        # Setpoints stream at the loop rate: finish quietly, no event per setpoint.
+        cmd.status = CommandStatus.DONE
+        cmd.attempts = 1
+        cmd.finished = cmd.created
+        if on_done is not None:
+            on_done(cmd)
+        return cmd
+
+    def request_streams(
+        self, rate_hz: float, *, on_done: Callable[[Command], None] | None = None
+    ) -> Command:
+        """Ask for the telemetry at `rate_hz`: REQUEST_DATA_STREAM (all streams, ArduPilot)
+        then SET_MESSAGE_INTERVAL for each message used (ArduPilot and PX4; a refusal of
+        one of these is only a warning on the command)."""
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            return self._refused("request_streams", f"rate must be > 0 Hz, got {rate_hz}", on_done)
+
+        def legacy(confirmation: int) -> None:
+            self._mav.request_data_stream_send(
+                self.target_system or 0,
+                self.target_component or 0,
+                mavlink2.MAV_DATA_STREAM_ALL,
+                max(1, int(round(rate_hz))),
+                1,
+            )
+
+        steps = [_Step("REQUEST_DATA_STREAM", legacy, None)]
+        interval_us = 1e6 / rate_hz
+        for msg_id in _STREAMED:
+            steps.append(
+                self._long_step(
+                    mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, (msg_id, interval_us), optional=True
+                )
+            )
+        home_us = 1e6 / min(rate_hz, _HOME_RATE_HZ)
+        steps.append(
+            self._long_step(
+                mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL,
+                (mavlink2.MAVLINK_MSG_ID_HOME_POSITION, home_us),
+                optional=True,
+            )
+        )
+        return self._new(f"request_streams {rate_hz:g} Hz", steps, on_done)
+
+
+def _describe_hb(m: Any) -> str:
+    """Who sent a heartbeat, e.g. "ARDUPILOTMEGA, MAV_TYPE_QUADROTOR"."""
+    ap = mavlink2.enums["MAV_AUTOPILOT"].get(m.autopilot)
+    ty = mavlink2.enums["MAV_TYPE"].get(m.type)
+    return f"{ap.name if ap else m.autopilot}, {ty.name if ty else m.type}"
+
+
+def describe_error(e: BaseException) -> str:
+    """An exception as a short reason: the OS error text when there is one."""
+    if isinstance(e, OSError):
+        # pyserial wraps the OS error in its own text ("could not open port ...: [Errno 2]
+        # ..."); the bare OS reason reads better after our own "cannot open PATH:".
+        if isinstance(e.errno, int) and e.errno > 0:
+            return os.strerror(e.errno)
+        if e.strerror:
+            return e.strerror
+    return str(e) or type(e).__name__
+
+
+_HANDLERS: dict[str, Callable[[Autopilot, Any, float], None]] = {
+    "GLOBAL_POSITION_INT": Autopilot._on_global_position,
+    "GPS_RAW_INT": Autopilot._on_gps_raw,
+    "ATTITUDE": Autopilot._on_attitude,
+    "VFR_HUD": Autopilot._on_vfr_hud,
+    "SYS_STATUS": Autopilot._on_sys_status,
+    "BATTERY_STATUS": Autopilot._on_battery_status,
+    "HOME_POSITION": Autopilot._on_home,
+    "EXTENDED_SYS_STATE": Autopilot._on_extended_state,
+    "RC_CHANNELS": Autopilot._on_rc_channels,
+    "RC_CHANNELS_RAW": Autopilot._on_rc_channels_raw,
+    "STATUSTEXT": Autopilot._on_statustext,
+    "COMMAND_ACK": Autopilot._on_ack,
+}

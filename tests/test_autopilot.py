@@ -1,0 +1,632 @@
+"""The autopilot link (fieldkit.autopilot.link) against a simulated ArduPilot on a real pty.
+
+Both ends speak pymavlink: `SimRig` puts a `SimVehicle` on the pty master and an `Autopilot`
+on the slave path, steps them in lockstep on a simulated clock and waits for the bytes (with
+a wall-clock deadline), never for time. Real ArduPilot logs from ../shared/data/tlogs are
+replayed through a pty as well, corrupt frames included.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import all as mavlink2
+
+from fieldkit import geo
+from fieldkit.autopilot import (
+    Autopilot,
+    AutopilotError,
+    Command,
+    CommandStatus,
+    FrameReader,
+    SimRig,
+    SimVehicle,
+    open_pty,
+)
+from fieldkit.profiles import load_profile
+
+TLOGS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tlogs"
+HOME = (45.5049, -73.6133)
+
+
+@pytest.fixture
+def make_rig() -> Iterator[Callable[..., SimRig]]:
+    """SimRigs closed at the end of the test."""
+    rigs: list[SimRig] = []
+
+    def make(profile: str = "solo", **options: object) -> SimRig:
+        rig = SimRig(profile, home=HOME, **options)
+        rigs.append(rig)
+        return rig
+
+    yield make
+    for rig in rigs:
+        rig.close()
+
+
+def kinds(rig: SimRig) -> list[tuple[str, str]]:
+    """The link's events so far, as (kind, text)."""
+    return [(e.kind, e.text) for e in rig.link.drain_events()]
+
+
+def finish(rig: SimRig, cmd: Command, seconds: float = 10.0) -> Command:
+    """Tick until `cmd` is over."""
+    assert rig.run_until(lambda: cmd.done, seconds), f"{cmd} still pending"
+    return cmd
+
+
+def airborne(rig: SimRig, alt: float = 5.0) -> None:
+    """Connected, GUIDED, armed and hovering at `alt` metres."""
+    rig.connect(10.0)
+    assert finish(rig, rig.link.takeoff(alt)).ok
+    accuracy = rig.profile.kinematics.hover_accuracy_m
+    assert rig.run_until(lambda: abs((rig.link.telemetry.alt_rel_m or 0.0) - alt) < accuracy, 20)
+
+
+# ---------------------------------------------------------------------------- link basics
+
+
+def test_heartbeats_both_ways(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    t = rig.link.wait_heartbeat(5.0, idle=rig.tick, poll_interval=0.0)
+    assert (rig.link.target_system, rig.link.target_component) == (1, 1)
+    assert t.mav_type == mavlink2.MAV_TYPE_QUADROTOR
+    assert t.autopilot_type == mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA
+    assert t.mode == "STABILIZE" and not t.armed
+    rig.run_for(3.0)
+    # Ours every second from the first poll on: at 0, 1, 2 and 3 s.
+    assert rig.sim.gcs_heartbeats == 4
+    assert rig.sim.received["HEARTBEAT"] == 4
+    assert rig.link.heartbeat_age() < 1.0 and not rig.link.heartbeat_lost
+    assert rig.link.bad_frames == 0 and rig.link.link_errors == 0
+    assert ("heartbeat", "autopilot found: system 1, MAV_AUTOPILOT_ARDUPILOTMEGA, "
+            "MAV_TYPE_QUADROTOR") in kinds(rig)  # fmt: skip
+
+
+def test_wait_heartbeat_times_out_with_a_clear_error(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    rig.sim.faults.silent = True
+    with pytest.raises(AutopilotError) as e:
+        rig.link.wait_heartbeat(2.0, idle=rig.tick, poll_interval=0.0)
+    assert re.fullmatch(
+        r"no heartbeat from the autopilot after 2 s on /dev/\S+ "
+        r"\(0 bytes received, 0 bad frames\)",
+        str(e.value),
+    )
+    assert 2.0 <= rig.now < 2.3
+
+
+def test_open_failure_is_an_autopilot_error() -> None:
+    with pytest.raises(AutopilotError, match="^cannot open the autopilot link /dev/nonexistent-"
+                       "tty: No such file or directory$"):  # fmt: skip
+        Autopilot("/dev/nonexistent-tty")
+
+
+def test_dji_profiles_have_no_mavlink_link() -> None:
+    with pytest.raises(AutopilotError, match="does not speak MAVLink"):
+        Autopilot.from_profile(load_profile("m100"))
+
+
+def test_gps_fix_wait_times_out_then_succeeds(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig(gps_fix_delay_s=1000.0)
+    rig.link.wait_heartbeat(5.0, idle=rig.tick, poll_interval=0.0)
+    with pytest.raises(AutopilotError, match=re.escape("no GPS fix after 1 s (no GPS_RAW_INT")):
+        rig.link.wait_gps_fix(1.0, idle=rig.tick, poll_interval=0.0)
+    rig.connect(10.0)
+    with pytest.raises(AutopilotError) as e:
+        rig.link.wait_gps_fix(30.0, idle=rig.tick, poll_interval=0.0)
+    assert str(e.value) == "no GPS fix after 30 s (fix type 1, 3 satellites)"
+    assert rig.link.telemetry.lat is None  # ArduPilot's 0, 0 before a fix is no position
+    rig.sim.gps_fix_delay_s = rig.sim.time + 2.0
+    t = rig.link.wait_gps_fix(5.0, idle=rig.tick, poll_interval=0.0)
+    assert (t.gps_fix_type, t.satellites) == (3, 10)
+    rig.run_for(0.5)
+    assert t.lat == pytest.approx(HOME[0], abs=1e-7) and t.lon == pytest.approx(HOME[1], abs=1e-7)
+    assert t.home == pytest.approx((HOME[0], HOME[1], 50.0), abs=1e-6)
+
+
+def test_stream_rates_follow_requests(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    rig.link.wait_heartbeat(5.0, idle=rig.tick, poll_interval=0.0)
+    rig.run_for(2.0)
+    # An ArduPilot port with SRn_ rates at 0: heartbeats only (and home, once, when set).
+    assert set(rig.link.message_counts) == {"HEARTBEAT", "HOME_POSITION"}
+    cmd = finish(rig, rig.link.request_streams(4.0))
+    assert cmd.ok and cmd.warnings == []
+    assert rig.sim.received["REQUEST_DATA_STREAM"] == 1
+    assert rig.sim.commands[mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL] == 8
+    before = rig.link.message_counts.copy()
+    rig.run_for(5.0)
+    got = rig.link.message_counts - before
+    for name in ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "SYS_STATUS", "ATTITUDE", "RC_CHANNELS"):
+        assert 19 <= got[name] <= 21, (name, got[name])
+    assert 2 <= got["HOME_POSITION"] <= 3  # asked for at 0.5 Hz at most
+    assert 4 <= got["HEARTBEAT"] <= 6
+
+    # One message faster, one off, by SET_MESSAGE_INTERVAL.
+    att = mavlink2.MAVLINK_MSG_ID_ATTITUDE
+    pos = mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+    assert finish(rig, rig.link.command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, (att, 1e5))).ok
+    assert finish(rig, rig.link.command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, (pos, -1))).ok
+    before = rig.link.message_counts.copy()
+    rig.run_for(5.0)
+    got = rig.link.message_counts - before
+    assert 49 <= got["ATTITUDE"] <= 51 and got["GLOBAL_POSITION_INT"] == 0
+    # A message the vehicle cannot stream: refused, and the refusal is reported.
+    bad = finish(rig, rig.link.command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, (9999, 1e5)))
+    assert not bad.ok and bad.result_name == "MAV_RESULT_FAILED"
+
+
+# ---------------------------------------------------------------------------- commands
+
+
+def test_arm_refused_before_the_gps_fix_then_accepted(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig(gps_fix_delay_s=5.0)
+    rig.connect(10.0)
+    refused = finish(rig, rig.link.arm())
+    assert refused.status is CommandStatus.FAILED
+    assert refused.error == (
+        "arm failed: MAV_CMD_COMPONENT_ARM_DISARM refused: MAV_RESULT_FAILED (PreArm: Need 3D Fix)"
+    )
+    assert refused.attempts == 1  # a refusal is final: no retry
+    assert ("command", refused.error) in kinds(rig)
+    rig.link.wait_gps_fix(10.0, idle=rig.tick, poll_interval=0.0)
+    accepted = finish(rig, rig.link.arm())
+    assert accepted.ok and accepted.result_name == "MAV_RESULT_ACCEPTED"
+    assert rig.run_until(lambda: rig.link.telemetry.armed, 1.5)
+    assert ("armed", "armed") in kinds(rig)
+
+
+def test_set_mode_by_name(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    rig.connect(10.0)
+    cmd = finish(rig, rig.link.set_mode("GUIDED"))
+    assert cmd.ok
+    assert rig.sim.mode == "GUIDED" and rig.sim.custom_mode == 4
+    assert rig.run_until(lambda: rig.link.telemetry.mode == "GUIDED", 1.5)
+    assert rig.link.telemetry.custom_mode == 4 and not rig.link.pilot_override
+    # A name the vehicle type does not have is refused at once, nothing sent.
+    sent = rig.link.bytes_sent
+    unknown = rig.link.set_mode("WARP")
+    assert unknown.status is CommandStatus.FAILED and unknown.done
+    assert "unknown mode 'WARP' (known: ACRO, ALT_HOLD, AUTO," in (unknown.error or "")
+    assert rig.link.bytes_sent == sent
+
+
+def test_mode_refused_without_position(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig(gps_fix_delay_s=100.0)
+    rig.connect(10.0)
+    cmd = finish(rig, rig.link.set_mode("GUIDED"))
+    assert cmd.error == (
+        "set_mode GUIDED failed: mode GUIDED refused: MAV_RESULT_FAILED "
+        "(Mode change to GUIDED failed: requires position)"
+    )
+    assert rig.sim.mode == "STABILIZE"
+
+
+def test_takeoff_reaches_the_altitude(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    rig.connect(10.0)
+    cmd = rig.link.takeoff(5.0)
+    assert cmd.name == "takeoff 5" and cmd.status is CommandStatus.ACTIVE  # sent at once
+    finish(rig, cmd)
+    assert cmd.ok
+    # GUIDED, arm, NAV_TAKEOFF: one each, in that order, each acknowledged.
+    sim = rig.sim
+    assert [sim.commands[c] for c in (176, 400, 22)] == [1, 1, 1]
+    accuracy = rig.profile.kinematics.hover_accuracy_m
+    t = rig.link.telemetry
+    assert rig.run_until(lambda: t.landed_state == 2 and abs((t.alt_rel_m or 0) - 5.0) < 0.05, 10)
+    assert t.armed and t.mode == "GUIDED"
+    assert geo.range_bearing(t.lat, t.lon, *HOME)[0] < accuracy  # type: ignore[arg-type]
+    assert rig.now < 5.0  # 5 m at 2.5 m/s climb: about 3 s
+
+
+def test_goto_converges_on_an_absolute_target(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    airborne(rig)
+    lat, lon = geo.offset_gps(*HOME, 40.0, -30.0)
+    cmd = rig.link.goto(lat, lon, 8.0)
+    assert cmd.ok and cmd.done  # setpoints have no ACK: done once sent
+    assert rig.link.last_target == (lat, lon, 8.0)
+    accuracy = rig.profile.kinematics.hover_accuracy_m
+    t = rig.link.telemetry
+
+    def there() -> bool:
+        return (
+            geo.range_bearing(t.lat, t.lon, lat, lon)[0] < accuracy  # type: ignore[arg-type]
+            and abs((t.alt_rel_m or 0.0) - 8.0) < accuracy
+        )
+
+    assert rig.run_until(there, 30.0)
+    rig.run_for(3.0)
+    assert there() and (t.ground_speed_mps or 0.0) < 0.05  # it stays: an absolute target
+    assert rig.sim.guided_target == pytest.approx((lat, lon, 8.0), abs=1e-7)
+
+
+def test_land_disarms_on_touchdown(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    airborne(rig)
+    cmd = finish(rig, rig.link.land())
+    assert cmd.ok and cmd.name == "land (LAND)"
+    t = rig.link.telemetry
+    assert rig.run_until(lambda: not t.armed, 20.0)
+    assert t.mode == "LAND" and abs(t.alt_rel_m or 0.0) < 0.01
+    rig.run_for(1.0)
+    assert t.landed_state == 1
+
+
+def test_rtl_climbs_returns_and_lands_at_home(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    airborne(rig)
+    lat, lon = geo.offset_gps(*HOME, -60.0, 25.0)
+    rig.link.goto(lat, lon, 6.0)
+    t = rig.link.telemetry
+    assert rig.run_until(lambda: geo.range_bearing(t.lat, t.lon, lat, lon)[0] < 1.0, 40)  # type: ignore[arg-type]
+    assert finish(rig, rig.link.rtl()).ok
+    highest = 0.0
+
+    def landed() -> bool:
+        nonlocal highest
+        highest = max(highest, t.alt_rel_m or 0.0)
+        return not t.armed
+
+    assert rig.run_until(landed, 90.0)
+    assert t.mode == "RTL"
+    assert highest == pytest.approx(rig.sim.rtl_alt_m, abs=0.05)  # climbed before returning
+    accuracy = rig.profile.kinematics.hover_accuracy_m
+    assert geo.range_bearing(t.lat, t.lon, *HOME)[0] < accuracy  # type: ignore[arg-type]
+
+
+def test_ground_robot_never_flies(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig("husky")
+    rig.connect(10.0)
+    assert rig.link.telemetry.mav_type == mavlink2.MAV_TYPE_GROUND_ROVER
+    refused = rig.link.takeoff(5.0)
+    assert refused.status is CommandStatus.FAILED
+    assert refused.error == "takeoff 5 refused: husky is a ground robot: it does not fly"
+    # The vehicle refuses too when asked directly: Rover does not know NAV_TAKEOFF.
+    direct = finish(rig, rig.link.command(mavlink2.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, 0, 0, 0, 5)))
+    assert direct.result_name == "MAV_RESULT_UNSUPPORTED"
+    assert direct.error == (
+        "MAV_CMD_NAV_TAKEOFF failed: MAV_CMD_NAV_TAKEOFF refused: MAV_RESULT_UNSUPPORTED"
+    )
+    assert finish(rig, rig.link.set_mode("GUIDED")).ok and rig.sim.custom_mode == 15
+    assert finish(rig, rig.link.arm()).ok
+    lat, lon = geo.offset_gps(*HOME, 12.0, 5.0)
+    rig.link.goto(lat, lon, 30.0)  # the altitude means nothing to a ground robot
+    t = rig.link.telemetry
+    highest = 0.0
+
+    def there() -> bool:
+        nonlocal highest
+        highest = max(highest, abs(t.alt_rel_m or 0.0), rig.sim.vehicle.z)
+        return geo.range_bearing(t.lat, t.lon, lat, lon)[0] < 0.5  # type: ignore[arg-type]
+
+    assert rig.run_until(there, 30.0)
+    assert highest == 0.0 and rig.sim.guided_target is not None
+    assert rig.sim.guided_target[2] == 0.0
+    land = finish(rig, rig.link.land())
+    assert land.ok and land.name == "land (HOLD)" and rig.sim.mode == "HOLD"
+
+
+def test_a_lost_ack_is_retried(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    rig.connect(10.0)
+    rig.sim.faults.drop_acks = 1
+    cmd = finish(rig, rig.link.arm())
+    assert cmd.ok and cmd.attempts == 2
+    assert rig.sim.commands[mavlink2.MAV_CMD_COMPONENT_ARM_DISARM] == 2
+    assert rig.sim.acks_dropped == 1
+    assert 1.0 <= cmd.finished - cmd.created <= 1.3  # type: ignore[operator]
+
+
+def test_no_ack_at_all_is_reported_and_the_queue_moves_on(
+    make_rig: Callable[..., SimRig],
+) -> None:
+    rig = make_rig()
+    rig.connect(10.0)
+    rig.sim.faults.drop_acks = 3  # every attempt of the first command
+    done: list[Command] = []
+    mode = rig.link.set_mode("GUIDED", on_done=done.append)
+    arm = rig.link.arm(on_done=done.append)
+    assert rig.link.pending == (mode, arm) and arm.status is CommandStatus.QUEUED
+    finish(rig, arm)
+    assert done == [mode, arm]
+    assert mode.error == "set_mode GUIDED failed: mode GUIDED: no COMMAND_ACK after 3 tries"
+    assert rig.sim.commands[mavlink2.MAV_CMD_DO_SET_MODE] == 3
+    assert rig.sim.mode == "GUIDED"  # it acted: only the answers were lost
+    assert arm.ok and arm.attempts == 1
+    assert rig.link.pending == ()
+
+
+def test_a_refused_command_is_reported(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    airborne(rig)
+    seen: list[Command] = []
+    cmd = finish(rig, rig.link.disarm(on_done=seen.append))
+    assert seen == [cmd] and cmd.status is CommandStatus.FAILED
+    assert cmd.error == "disarm failed: MAV_CMD_COMPONENT_ARM_DISARM refused: MAV_RESULT_FAILED"
+    assert [e.command for e in rig.link.drain_events() if e.command is not None][-1] is cmd
+    assert rig.sim.armed
+    forced = finish(rig, rig.link.disarm(force=True))
+    assert forced.ok and not rig.sim.armed and rig.sim.vehicle.z == 0.0
+
+
+def test_safety_commands_jump_the_queue(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    airborne(rig)
+    streams = rig.link.request_streams(5.0)  # nine steps
+    arm = rig.link.arm()
+    land = rig.link.land()
+    assert rig.link.pending == (streams, land, arm)
+    finish(rig, arm)
+    assert land.finished is not None and arm.finished is not None
+    assert land.finished < arm.finished
+    rig.link.cancel_all("test over")
+
+
+def test_commands_wait_for_a_heartbeat_then_give_up(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig(link_options={"queue_timeout_s": 2.0})
+    rig.sim.faults.silent = True
+    cmd = rig.link.arm()
+    assert cmd.status is CommandStatus.QUEUED
+    assert rig.link.goto(*HOME, 5.0).error == (
+        "goto 45.5049000,-73.6133000,5 refused: no heartbeat from the autopilot yet"
+    )
+    finish(rig, cmd, 3.0)
+    assert cmd.error == "arm: not sent, no heartbeat from the autopilot after 2 s"
+    assert rig.sim.commands.total() == 0
+
+
+# ---------------------------------------------------------------------------- robustness
+
+
+def test_garbage_and_corrupt_frames_cost_only_a_counter(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig(seed=7)
+    rig.connect(10.0)
+    faults = rig.sim.faults
+    faults.garbage_every, faults.garbage_len, faults.corrupt_every = 3, 24, 11
+    rig.run_for(3.0)
+    takeoff = finish(rig, rig.link.takeoff(5.0))
+    rig.run_for(5.0)
+    faults.garbage_every = faults.corrupt_every = 0
+    rig.run_for(3.0)  # enough clean bytes to flush any half-believed frame
+    sim, link = rig.sim, rig.link
+    assert sim.garbage_bytes > 1000 and sim.corrupted_frames > 20
+    # Every frame that left intact arrived, whatever noise surrounded it.
+    assert link.messages == sim.frames_sent - sim.corrupted_frames
+    assert link.bad_frames >= sim.corrupted_frames
+    assert link.link_errors == 0
+    assert takeoff.ok  # a corrupted ACK is retried like a lost one
+    t = link.telemetry
+    lat, lon, alt = sim.position
+    assert (t.lat, t.lon) == pytest.approx((lat, lon), abs=2e-7) and t.alt_rel_m == pytest.approx(
+        alt, abs=0.01
+    )
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    picks=st.lists(st.integers(0, 3), min_size=1, max_size=12),
+    noise=st.lists(st.binary(max_size=40), min_size=12, max_size=12),
+    cuts=st.lists(st.integers(1, 64), min_size=1, max_size=20),
+)
+def test_frame_reader_recovers_every_frame_from_noise(
+    picks: list[int], noise: list[bytes], cuts: list[int]
+) -> None:
+    enc = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    samples = [
+        enc.heartbeat_encode(2, 3, 209, 4, 4),
+        enc.global_position_int_encode(1000, 455049000, -736133000, 50000, 5000, 1, 2, 3, 9000),
+        enc.command_ack_encode(400, 0, 0, 0, 255, 191),
+        enc.statustext_encode(2, b"PreArm: Need 3D Fix"),
+    ]
+    frames = [samples[i].pack(enc, force_mavlink1=j % 3 == 2) for j, i in enumerate(picks)]
+    stream = b"".join(noise[j] + f for j, f in enumerate(frames)) + noise[-1] + bytes(300)
+    reader = FrameReader(mavlink2.MAVLink(None))
+    got = []
+    pos, k = 0, 0
+    while pos < len(stream):
+        step = cuts[k % len(cuts)]
+        got += reader.feed(stream[pos : pos + step])
+        pos, k = pos + step, k + 1
+    assert [bytes(m.get_msgbuf()) for m in got] == [bytes(f) for f in frames]
+    assert reader.messages == len(frames)
+    if any(noise[: len(frames)]) or noise[-1]:
+        assert reader.bad_frames + reader.unknown_frames > 0
+
+
+def test_heartbeat_loss_is_detected(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    rig.connect(5.0)
+    rig.run_for(2.0)
+    kinds(rig)
+    rig.sim.faults.heartbeats = False
+    positions = rig.link.message_counts["GLOBAL_POSITION_INT"]
+    assert rig.run_until(lambda: rig.link.heartbeat_lost, 5.0)
+    assert 3.0 < rig.link.heartbeat_age() <= 3.2  # the profile's 3 s, plus up to a tick
+    assert rig.link.message_counts["GLOBAL_POSITION_INT"] >= positions + 10  # the rest flows
+    assert [k for k in kinds(rig) if k[0] == "heartbeat"] == [
+        ("heartbeat", "autopilot heartbeat lost: none for 3.1 s")
+    ]
+    rig.sim.faults.heartbeats = True
+    assert rig.run_until(lambda: not rig.link.heartbeat_lost, 1.5)
+    assert ("heartbeat", "autopilot heartbeat back") in kinds(rig)
+
+
+def test_pilot_override_by_the_mode_switch(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    airborne(rig)
+    kinds(rig)
+    assert not rig.link.pilot_override
+    assert rig.sim.pilot_switch("LOITER")
+    t = rig.link.telemetry
+    assert rig.run_until(lambda: t.rc_override, 0.5)  # RC_CHANNELS at 10 Hz
+    assert t.rc_channels[4] == 1900 and len(t.rc_channels) == 16 and rig.link.pilot_override
+    assert rig.run_until(lambda: t.mode == "LOITER", 1.5)  # the heartbeat, at 1 Hz
+    assert rig.link.mode_override
+    events = [text for kind, text in kinds(rig) if kind == "override"]
+    assert sorted(events) == [
+        "RC channel 5 at 1900 us: the pilot has control",
+        "mode changed to LOITER without the node (it asked for GUIDED): pilot or autopilot "
+        "failsafe",
+    ]
+    # The pilot hands back: switch low, and the node asks for GUIDED again.
+    rig.sim.pilot_release()
+    assert finish(rig, rig.link.set_mode("GUIDED")).ok
+    assert rig.run_until(lambda: not rig.link.pilot_override and t.mode == "GUIDED", 1.5)
+
+
+def test_low_battery_is_reported(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    rig.connect(10.0)
+    rig.sim.set_battery(15.0)
+    t = rig.link.telemetry
+    assert rig.run_until(lambda: t.battery_percent == 15.0, 0.5)
+    battery = rig.profile.battery
+    expected = battery.empty_voltage + (battery.full_voltage - battery.empty_voltage) * 0.15
+    assert t.battery_voltage_v == pytest.approx(expected, abs=0.001)
+    assert t.battery_current_a == pytest.approx(0.3)  # disarmed: the electronics only
+
+
+def test_a_tcp_link_like_sitl() -> None:
+    """The link on `tcp:` against a vehicle listening like SITL, both in real time."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    sim = SimVehicle(load_profile("solo"), f"tcpin:127.0.0.1:{port}", default_rate_hz=10.0)
+    stop = threading.Event()
+    runner = threading.Thread(target=sim.run, args=(50.0, stop), daemon=True)
+    runner.start()
+    try:
+        with Autopilot(f"tcp:127.0.0.1:{port}", profile=load_profile("solo")) as link:
+            link.wait_heartbeat(10.0)
+            link.wait_gps_fix(10.0)
+            assert link.wait_command(link.takeoff(1.0), 10.0).ok
+            deadline = time.monotonic() + 10.0
+            while link.telemetry.alt_rel_m is None or link.telemetry.alt_rel_m < 0.9:
+                assert time.monotonic() < deadline, "no climb seen"
+                link.poll(0.1)
+            assert link.telemetry.lat == pytest.approx(45.5049, abs=1e-6)
+    finally:
+        stop.set()
+        runner.join(5.0)
+        sim.close()
+    assert not runner.is_alive()
+
+
+# ---------------------------------------------------------------------------- real logs
+
+
+def _tlog_frames(path: Path) -> list[bytes]:
+    """The raw MAVLink frames of a tlog (each record: 8-byte timestamp, then one frame)."""
+    data = path.read_bytes()
+    frames: list[bytes] = []
+    i = 0
+    while i + 10 < len(data):
+        j = i + 8
+        if data[j] == 0xFE:
+            n = data[j + 1] + 8
+        elif data[j] == 0xFD:
+            n = data[j + 1] + 12 + (13 if data[j + 2] & 1 else 0)
+        else:
+            raise AssertionError(f"{path.name}: record at byte {i} is not a MAVLink frame")
+        frames.append(data[j : j + n])
+        i = j + n
+    return frames
+
+
+@pytest.mark.skipif(not TLOGS.is_dir(), reason=f"real logs not present ({TLOGS})")
+@pytest.mark.parametrize(
+    ("name", "first", "last", "changes"),
+    [
+        # Arming, LOITER, disarming, re-arming, RTL and back to STABILIZE; 240 bad CRCs.
+        ("quad-flight-arducopter.tlog", 30_000, 48_000, 8),
+        # An ROV sitting disarmed in MANUAL, no GPS position, 348 corrupt frames.
+        ("rov-ardusub-baddata.tlog", 20_000, 32_000, 1),
+    ],
+)
+def test_a_real_log_through_a_pty(name: str, first: int, last: int, changes: int) -> None:
+    frames = _tlog_frames(TLOGS / name)[first:last]
+    # What pymavlink itself makes of these frames, one record at a time.
+    ref = mavlink2.MAVLink(None)
+    ref.robust_parsing = True
+    good, bad = [], 0
+    for f in frames:
+        for m in ref.parse_buffer(f) or []:
+            if m.get_type() == "BAD_DATA":
+                bad += 1
+            else:
+                good.append(m)
+    assert bad > 200
+    hb = [m for m in good if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1]
+    hb = [m for m in hb if m.get_srcSystem() == 1]
+    last_of = {m.get_type(): m for m in good if m.get_srcSystem() == 1}
+    # The battery as the link documents it: the latest of SYS_STATUS and BATTERY_STATUS #0.
+    volts: float | None = None
+    percent: float | None = None
+    for m in good:
+        if m.get_srcSystem() != 1:
+            continue
+        if m.get_type() == "SYS_STATUS":
+            volts = m.voltage_battery * 1e-3 if m.voltage_battery != 65535 else volts
+            percent = float(m.battery_remaining) if m.battery_remaining != -1 else None
+        elif m.get_type() == "BATTERY_STATUS" and m.id == 0:
+            cells = [v for v in m.voltages if v != 65535]
+            volts = sum(cells) * 1e-3 if cells else volts
+            percent = float(m.battery_remaining) if m.battery_remaining != -1 else percent
+    transitions: list[str] = []
+    state = ("UNKNOWN", False)
+    for m in hb:
+        mode, armed = mavutil.mode_string_v10(m), bool(m.base_mode & 128)
+        if armed != state[1]:
+            transitions.append("armed" if armed else "disarmed")
+        if mode != state[0]:
+            transitions.append(f"mode {state[0]} -> {mode}")
+        state = (mode, armed)
+
+    pty = open_pty()
+    now = [0.0]
+    link = Autopilot(pty.slave_path, clock=lambda: now[0], heartbeat_interval_s=None)
+    try:
+        stream = b"".join(frames)
+        sent = 0
+        while link.bytes_received < len(stream):
+            if sent < len(stream):
+                try:
+                    sent += os.write(pty.master, stream[sent : sent + 4096])
+                except BlockingIOError:
+                    pass  # the pty is full: let the link read
+            link.poll(0.5)
+            now[0] += 0.001
+    finally:
+        link.close()
+        pty.close()
+
+    assert link.messages == len(good)  # not one good frame lost to the corrupt ones
+    assert link.bad_frames >= bad and link.link_errors == 0
+    assert [e.text for e in link.drain_events() if e.kind in ("mode", "armed")] == transitions
+    assert len(transitions) == changes
+    t = link.telemetry
+    assert (t.mode, t.armed) == state
+    pos = last_of["GLOBAL_POSITION_INT"]
+    if pos.lat or pos.lon:
+        assert (t.lat, t.lon) == (pos.lat * 1e-7, pos.lon * 1e-7)
+        assert t.alt_rel_m == pos.relative_alt * 1e-3
+    else:
+        assert t.lat is None  # 0, 0 is ArduPilot's "no position"
+    assert volts is not None and t.battery_voltage_v == pytest.approx(volts, abs=1e-9)
+    assert t.battery_percent == percent
+    gps = last_of["GPS_RAW_INT"]
+    assert (t.gps_fix_type, t.satellites) == (gps.fix_type, gps.satellites_visible)
