@@ -74,7 +74,9 @@ def test_degenerate_sites_never_raise() -> None:
     # Bad indices, non-finite sites and degenerate boundaries.
     assert vor.bounded_cell(5, line, SQUARE) == []
     assert vor.bounded_cell(0, [(math.nan, 1.0)], SQUARE) == []
-    assert vor.area(vor.bounded_cell(0, [(1.0, 1.0), (math.inf, 0.0)], SQUARE)) == pytest.approx(100.0)
+    assert vor.area(vor.bounded_cell(0, [(1.0, 1.0), (math.inf, 0.0)], SQUARE)) == pytest.approx(
+        100.0
+    )
     assert vor.bounded_cell(0, line, [(0, 0), (1, 1), (2, 2)]) == []
     assert vor.bounded_cell(0, line, [(0, 0), (1, 0)]) == []
     assert vor.bounded_cell(0, line, []) == []

@@ -1,0 +1,369 @@
+"""The shipped behaviours: the barrier, task allocation and Voronoi coverage.
+
+Two levels: the Buzz pieces on `Harness` with stand-in closures (robots teleport to their
+goto_abs targets), and end to end on the simulator (kinematics, radio, script API) at small
+scale, with and without 90 % packet loss. Everything is seeded.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+import bvm
+from bvm.values import f32, format_value
+from fieldkit import geo, shapes
+from fieldkit import voronoi as vor
+from fieldkit.sim import simulator as sim_mod
+from fieldkit.sim.harness import Harness
+from fieldkit.sim.radio import LinkModel
+
+SCRIPTS = Path(__file__).resolve().parent.parent / "buzz_scripts"
+INCLUDE = SCRIPTS / "include"
+
+BARRIER_PROBE = """
+include "barrier.bzz"
+function init() {
+  T = 0
+  OUT = "waiting"
+  AT = -1
+  if (JOIN == 1) {
+    B = barrier_new(KEY, CODE, THRESHOLD)
+  }
+}
+function step() {
+  T = T + 1
+  if (JOIN == 1) {
+    var o = barrier_step(B)
+    if (o != OUT) {
+      OUT = o
+      AT = T
+    }
+  }
+}
+"""
+
+
+def barrier_run(
+    ids: list[int],
+    *,
+    drop: float,
+    seed: int,
+    threshold: int,
+    joiners: set[int] | None = None,
+    timeout: int = 300,
+    steps: int = 200,
+    key: int = 4,
+    code: int = 900,
+) -> Harness:
+    """Robots `ids` in one barrier (only `joiners` take part), over a lossy radio."""
+    joiners = set(ids) if joiners is None else joiners
+
+    def setup(rid: int, vm: bvm.VM) -> None:
+        vm["JOIN"] = int(rid in joiners)
+        vm["KEY"], vm["CODE"], vm["THRESHOLD"] = key, code, threshold
+        vm["BARRIER_TIMEOUT"] = timeout
+
+    program = bvm.compile_source(BARRIER_PROBE, str(INCLUDE / "probe.bzz"))
+    h = Harness(
+        program,
+        ids,
+        positions={i: (3.0 * i, 0.0, 0.0) for i in ids},
+        link=LinkModel(drop=drop),
+        seed=seed,
+        setup=setup,
+        budget_bytes=186,  # ROSBuzz's bundle content per step
+        overhead=2,
+    )
+    h.run(steps)
+    assert h.errors == {}
+    return h
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_barrier_passes_on_ten_robots_at_half_loss(seed: int) -> None:
+    h = barrier_run(list(range(1, 11)), drop=0.5, seed=seed, threshold=10)
+    outcomes = {rid: (vm["OUT"], vm["AT"]) for rid, vm in h.vms.items()}
+    assert {o for o, _ in outcomes.values()} == {"passed"}
+    assert max(at for _, at in outcomes.values()) <= 20
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_barrier_passes_at_ninety_percent_loss(seed: int) -> None:
+    h = barrier_run(list(range(1, 11)), drop=0.9, seed=seed, threshold=10, steps=300)
+    assert {vm["OUT"] for vm in h.vms.values()} == {"passed"}
+
+
+def test_barrier_times_out_when_a_robot_is_missing() -> None:
+    h = barrier_run(list(range(1, 10)), drop=0.5, seed=1, threshold=10, timeout=60, steps=80)
+    assert {(vm["OUT"], vm["AT"]) for vm in h.vms.values()} == {("timedout", 60)}
+
+
+def test_barrier_on_a_sub_swarm() -> None:
+    # Robots 1..4 wait for each other; 5..8 do not take part and must not block them.
+    h = barrier_run(list(range(1, 9)), drop=0.3, seed=4, threshold=4, joiners={1, 2, 3, 4})
+    assert [h.vms[r]["OUT"] for r in range(1, 9)] == ["passed"] * 4 + ["waiting"] * 4
+
+
+def test_barrier_instances_do_not_share_entries() -> None:
+    # ROSBuzz reused one stigmergy: a second barrier with the same code passed on the
+    # entries of the first. Here a new key is a new store, so with robot 6 missing the
+    # second instance times out even though all 6 passed the first.
+    src = BARRIER_PROBE.replace(
+        "function step() {\n  T = T + 1",
+        "function step() {\n  T = T + 1\n"
+        '  if (T == 60 and id != 6) { B = barrier_new(KEY + 1, CODE, THRESHOLD) OUT = "waiting" }',
+    )
+    program = bvm.compile_source(src, str(INCLUDE / "probe.bzz"))
+
+    def setup(rid: int, vm: bvm.VM) -> None:
+        vm["JOIN"], vm["KEY"], vm["CODE"], vm["THRESHOLD"] = 1, 4, 900, 6
+        vm["BARRIER_TIMEOUT"] = 50
+
+    h = Harness(program, range(1, 7), link=LinkModel(drop=0.2), seed=5, setup=setup)
+    h.run(59)
+    assert {vm["OUT"] for vm in h.vms.values()} == {"passed"}
+    h.run(60)
+    assert [h.vms[r]["OUT"] for r in range(1, 6)] == ["timedout"] * 5
+
+
+# ------------------------------------------------------------------ stand-in host
+
+
+class StandIn:
+    """A Harness with the script API's closures faked: goto_abs teleports the robot.
+
+    Ground robots (V_TYPE 2), so takeoff is immediate; the host globals are pushed before
+    each step as the field node does.
+    """
+
+    def __init__(self, script: Path, n: int, *, drop: float, seed: int, **globs: object) -> None:
+        self.lines: list[str] = []
+        self.rc: dict[int, int] = {}
+        self.n = n
+        # Harness positions: (x east, y north, z); robots start on a 3 m line going east.
+        positions = {i: (3.0 * (i - 1), 0.0, 0.0) for i in range(1, n + 1)}
+
+        def setup(rid: int, vm: bvm.VM) -> None:
+            for name in ("uav_takeoff", "uav_land", "gohome", "arm", "disarm", "reset_rc"):
+                vm.register(name, lambda *args: None)
+            vm.register(
+                "log",
+                lambda *a, rid=rid: self.lines.append(
+                    f"[{rid}] " + " ".join(format_value(x) for x in a)
+                ),
+            )
+            vm.register("goto_abs", self._mover(rid))
+            vm.register("load_graph", shapes.load_graph)
+            vm["V_TYPE"], vm["TARGET_ALTITUDE"], vm["ROBOTS"] = 2, 5.0, n
+            for k, v in globs.items():
+                vm[k] = v
+            self._push(rid, vm)
+
+        program = bvm.compile_file(script)
+        self.h = Harness(
+            program,
+            range(1, n + 1),
+            positions=positions,
+            link=LinkModel(drop=drop),
+            seed=seed,
+            setup=setup,
+            budget_bytes=186,
+            overhead=2,
+        )
+
+    def _mover(self, rid: int) -> Callable[..., None]:
+        def goto_abs(dx: float, dy: float, dh: float, yaw: float) -> None:
+            x, y, z = self.h.positions[rid]
+            self.h.positions[rid] = (x + dy, y + dx, z)  # dx north, dy east
+
+        return goto_abs
+
+    def _push(self, rid: int, vm: bvm.VM) -> None:
+        x, y, _ = self.h.positions[rid] if hasattr(self, "h") else (3.0 * (rid - 1), 0.0, 0.0)
+        vm["pose"] = {
+            "position": {"latitude": 0.0, "longitude": 0.0, "altitude": 0.0, "x": y, "y": x},
+            "orientation": {"yaw": 0.0},
+        }
+        vm["flight"] = {"status": 1, "rc_cmd": self.rc.pop(rid, 0)}
+
+    def run(self, steps: int, until: Callable[[], bool] | None = None) -> None:
+        for _ in range(steps):
+            for rid, vm in self.h.vms.items():
+                self._push(rid, vm)
+            self.h.step()
+            assert self.h.errors == {}
+            if until is not None and until():
+                return
+
+    def states(self) -> list[str]:
+        return [vm["BVMSTATE"] for vm in self.h.vms.values()]
+
+
+def all_joined(states: list[str]) -> bool:
+    return all(s in ("JOINED", "LOCK") for s in states)
+
+
+@pytest.mark.parametrize(("drop", "seed"), [(0.0, 1), (0.5, 2)])
+def test_task_allocation_assigns_distinct_labels(drop: float, seed: int) -> None:
+    sim = StandIn(SCRIPTS / "task_allocation.bzz", 6, drop=drop, seed=seed)
+    sim.run(5)
+    assert sim.states() == ["TURNEDOFF"] * 6
+    sim.rc[3] = 900  # any robot can receive the command; the root is still robot 1
+    sim.run(600, until=lambda: sim.states() == ["LOCK"] * 6)
+    assert sim.states() == ["LOCK"] * 6
+    labels = {rid: vm["TA_LABEL"] for rid, vm in sim.h.vms.items()}
+    assert sorted(labels.values()) == list(range(6))
+    assert labels[1] == 0
+    # Each robot sits where its node is, relative to the root.
+    ideal = shapes.positions("P")
+    rx, ry, _ = sim.h.positions[1]
+    for rid, label in labels.items():
+        x, y, _ = sim.h.positions[rid]
+        assert math.hypot(y - ry - ideal[label][0], x - rx - ideal[label][1]) < 0.3
+
+
+def test_more_robots_than_tasks_leaves_the_extras_free() -> None:
+    sim = StandIn(SCRIPTS / "task_allocation.bzz", 8, drop=0.0, seed=3)
+    sim.rc[1] = 900
+    sim.run(300)
+    states = sim.states()
+    assert sorted(states).count("FREE") == 2
+    assert sum(s in ("JOINED", "LOCK") for s in states) == 6
+    labels = [vm["TA_LABEL"] for vm in sim.h.vms.values() if vm["BVMSTATE"] != "FREE"]
+    assert sorted(labels) == list(range(6))
+
+
+def test_land_command_spreads_and_ends_turned_off() -> None:
+    sim = StandIn(SCRIPTS / "task_allocation.bzz", 4, drop=0.3, seed=6, SHAPE="L")
+    sim.rc[2] = 900
+    sim.run(100)
+    assert all(s != "TURNEDOFF" for s in sim.states())
+    sim.rc[4] = 21
+    sim.run(60)
+    assert sim.states() == ["TURNEDOFF"] * 4
+    assert any("[4] barrier 900 passed" in line for line in sim.lines)
+
+
+# ------------------------------------------------------------------ end to end (simulator)
+
+
+def simulate(
+    script: str,
+    n: int,
+    drop: float,
+    seed: int,
+    commands: list,
+    seconds: float,
+    until: Callable[[object], bool] | None = None,
+    **globs: object,
+):
+    """Run the simulator for at most `seconds`, stopping early once `until(sim)` holds."""
+    cfg = sim_mod.SimConfig(
+        script=SCRIPTS / script,
+        robots=n,
+        drop=drop,
+        seed=seed,
+        seconds=seconds,
+        commands=commands,
+        globals=dict(globs),
+    )
+    sim = sim_mod.Simulation(cfg)
+    total = round(seconds / sim_mod.TICK_S)
+    while sim.tick < total:
+        sim.step()
+        if until is not None and sim.tick % 10 == 0 and until(sim):
+            break
+    assert [r.error for r in sim.robots.values() if r.error] == []
+    return sim
+
+
+def formed(sim) -> bool:
+    return all(r.state == "LOCK" for r in sim.robots.values())
+
+
+@pytest.mark.parametrize(("drop", "seed"), [(0.0, 1), (0.9, 2), (0.9, 3)])
+def test_task_allocation_end_to_end(drop: float, seed: int) -> None:
+    rc = sim_mod.RcCommand
+    sim = simulate(
+        "task_allocation.bzz", 6, drop, seed, [rc(0.5, 1, 22), rc(6.0, 1, 900)], 90.0, formed
+    )
+    assert formed(sim)
+    labels = {r.id: r.vm["TA_LABEL"] for r in sim.robots.values()}
+    assert sorted(labels.values()) == list(range(6))
+    ideal = shapes.positions("P")
+    root = sim.robots[1].vehicle
+    for r in sim.robots.values():
+        north, east = ideal[labels[r.id]]
+        v = r.vehicle
+        assert math.hypot(v.y - root.y - north, v.x - root.x - east) < ARRIVE_TOL
+        assert v.z == pytest.approx(5.0, abs=0.3)  # flying at the profile's altitude
+
+
+ARRIVE_TOL = 0.6  # the script's ARRIVED (0.5 m) plus the hold tolerance slack
+
+
+def test_task_allocation_from_the_ground_with_one_command() -> None:
+    # RC 900 on the ground: barrier, takeoff, then allocation (no separate RC 22).
+    rc = sim_mod.RcCommand
+    sim = simulate("task_allocation.bzz", 6, 0.2, 4, [rc(1.0, 6, 900)], 60.0, formed, SHAPE="Y")
+    assert formed(sim)
+
+
+def test_ground_robots_skip_takeoff() -> None:
+    rc = sim_mod.RcCommand
+    cfg = sim_mod.SimConfig(
+        script=SCRIPTS / "task_allocation.bzz",
+        robots=6,
+        seed=5,
+        seconds=60.0,
+        commands=[rc(0.5, 1, 22), rc(3.0, 1, 900)],
+        profile="husky",
+    )
+    sim = sim_mod.Simulation(cfg)
+    while sim.tick < 600 and not formed(sim):
+        sim.step()
+    assert formed(sim)
+    assert all(r.vehicle.z == 0.0 for r in sim.robots.values())
+
+
+HOTSPOTS_EN = [(-10.0, -10.0), (30.0, -10.0), (30.0, 30.0), (-10.0, 30.0), (10.0, 45.0)]
+
+
+def coverage_run(drop: float, seed: int):
+    """6 robots: takeoff, five hotspots to two different robots, DEPLOY; until settled."""
+    rc = sim_mod.RcCommand
+    frame = geo.LocalFrame(*sim_mod.DEFAULT_ORIGIN)
+    cmds = [rc(0.5, 1, 22)]
+    seen = []  # the hotspots as robots get them: rc_goto holds binary32 lat/lon
+    for k, (east, north) in enumerate(HOTSPOTS_EN):
+        lat, lon, _ = frame.to_gps(east, north, 0.0)
+        cmds.append(rc(2.0 + 0.5 * k, 1 + k % 2, 16, (50.0 + k, lat, lon, 5.0)))
+        x, y, _ = frame.from_gps(f32(lat), f32(lon), 0.0)
+        seen.append((x, y))
+    cmds.append(rc(6.0, 3, 901))
+    boundary = vor.convex_hull(seen, margin=20.0)
+
+    def settled(sim) -> bool:
+        pts = [(r.vehicle.x, r.vehicle.y) for r in sim.robots.values()]
+        speeds = [math.hypot(r.vehicle.vx, r.vehicle.vy) for r in sim.robots.values()]
+        return (
+            sim.tick > 200
+            and max(vor.centroid_distances(pts, boundary)) < 0.5
+            and (max(speeds) < 0.05)
+        )
+
+    sim = simulate("coverage.bzz", 6, drop, seed, cmds, 120.0, settled)
+    pts = [(r.vehicle.x, r.vehicle.y) for r in sim.robots.values()]
+    return sim, vor.centroid_distances(pts, boundary)
+
+
+@pytest.mark.parametrize(("drop", "seed"), [(0.0, 1), (0.9, 2)])
+def test_coverage_end_to_end(drop: float, seed: int) -> None:
+    sim, dists = coverage_run(drop, seed)
+    assert all(r.state == "DEPLOY" for r in sim.robots.values())
+    assert all(r.vm["HS_COUNT"] == len(HOTSPOTS_EN) for r in sim.robots.values())
+    assert max(dists) < 1.0
