@@ -8,6 +8,7 @@ replayed through a pty as well, corrupt frames included.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import socket
@@ -445,6 +446,37 @@ def test_frame_reader_recovers_every_frame_from_noise(
     assert reader.messages == len(frames)
     if any(noise[: len(frames)]) or noise[-1]:
         assert reader.bad_frames + reader.unknown_frames > 0
+
+
+def test_fuzz_slice_hostile_streams() -> None:
+    """A short deterministic slice of `python -m tests.fuzz.mavlink_fuzz` (see there)."""
+    from fuzz import mavlink_fuzz
+
+    lines: list[str] = []
+    stats = mavlink_fuzz.run("ci", max_inputs=400, out=lines.append)
+    assert stats.failures == 0, "\n".join(lines)
+    assert stats.inputs == 400 and stats.frames > 2000
+
+
+def test_hostile_values_are_not_telemetry(make_rig: Callable[..., SimRig]) -> None:
+    rig = make_rig()
+    rig.connect(10.0)
+    rig.run_for(1.0)
+    t = rig.link.telemetry
+    before = (t.lat, t.lon, t.yaw_rad, t.battery_percent)
+    enc = mavlink2.MAVLink(rig.sim, srcSystem=1, srcComponent=1)  # frames from "the vehicle"
+    enc.global_position_int_send(0, 2**31 - 1, 5, 0, 0, 0, 0, 0, 0)  # latitude 214 degrees
+    enc.attitude_send(0, 0.0, 0.0, math.nan, 0.0, 0.0, 0.0)
+    enc.sys_status_send(0, 0, 0, 0, 12000, -1, 127, 0, 0, 0, 0, 0, 0)
+    enc.rc_channels_send(0, 255, *([1500] * 18), 255)
+    deadline = time.monotonic() + 5.0
+    while rig.link.bytes_received < rig.sim.bytes_sent:
+        assert time.monotonic() < deadline, "bytes not delivered"
+        rig.link.poll(0.5)
+    assert rig.link.link_errors == 0
+    assert (t.lat, t.lon, t.yaw_rad) == (before[0], before[1], None)
+    assert t.battery_percent is None and t.battery_voltage_v == 12.0
+    assert len(t.rc_channels) == 18
 
 
 def test_heartbeat_loss_is_detected(make_rig: Callable[..., SimRig]) -> None:

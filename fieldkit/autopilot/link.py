@@ -322,13 +322,15 @@ class Autopilot:
         heartbeat_timeout_s: float | None = None,
         override_channel: int = 5,
         override_pwm: int = 1800,
+        target_system: int | None = None,
     ) -> None:
         """Open `url` (any pymavlink connection string); raises AutopilotError if it fails.
 
         `profile` gives the mode names, the heartbeat timeout and whether the robot is a
         ground robot (no takeoff). `heartbeat_interval_s`: how often `poll()` sends our own
         heartbeat (None: only `send_heartbeat()`). RC channel `override_channel` at or
-        above `override_pwm` microseconds reads as the pilot taking over.
+        above `override_pwm` microseconds reads as the pilot taking over. `target_system`
+        pins the autopilot's system id; by default the first autopilot heartbeat decides.
         """
         if max_attempts < 1:
             raise ValueError("max_attempts must be >= 1")
@@ -385,6 +387,7 @@ class Autopilot:
 
         self.telemetry = Telemetry()
         self.target_system: int | None = None
+        self._pinned = target_system
         self.target_component: int | None = None
         self.message_counts: Counter[str] = Counter()
         self.bytes_received = 0
@@ -545,7 +548,11 @@ class Autopilot:
             self.bytes_received += len(data)
             now = self._clock()
             for msg in self._reader.feed(data):
-                self._handle(msg, now)
+                try:
+                    self._handle(msg, now)
+                except Exception as e:  # a hostile message must not stop the node's loop
+                    self._link_error(f"cannot use {msg.get_type()}: {describe_error(e)}")
+                    continue
                 handled += 1
             if fd is None:
                 break  # no descriptor: cannot tell "more" from "no more"; next poll reads on
@@ -659,7 +666,12 @@ class Autopilot:
         self.message_counts[name] += 1
         src = msg.get_srcSystem()
         if name == "HEARTBEAT":
-            if self.target_system is None and _is_vehicle_heartbeat(msg):
+            pinned = self._pinned
+            if (
+                self.target_system is None
+                and _is_vehicle_heartbeat(msg)
+                and (pinned is None or src == pinned)
+            ):
                 self.target_system, self.target_component = src, msg.get_srcComponent()
                 self._event("heartbeat", f"autopilot found: system {src}, {_describe_hb(msg)}")
             if (src, msg.get_srcComponent()) == (self.target_system, self.target_component):
@@ -698,7 +710,7 @@ class Autopilot:
 
     def _on_global_position(self, m: Any, now: float) -> None:
         t = self.telemetry
-        if m.lat == 0 and m.lon == 0:
+        if (m.lat == 0 and m.lon == 0) or not _on_earth(m.lat, m.lon):
             return  # ArduPilot reports 0, 0 until it has a position
         t.lat, t.lon = m.lat * 1e-7, m.lon * 1e-7
         t.alt_msl_m, t.alt_rel_m = m.alt * 1e-3, m.relative_alt * 1e-3
@@ -710,21 +722,22 @@ class Autopilot:
         t = self.telemetry
         t.gps_fix_type = m.fix_type
         t.satellites = None if m.satellites_visible == 255 else m.satellites_visible
-        if m.fix_type >= 2:
+        if m.fix_type >= 2 and _on_earth(m.lat, m.lon):
             t.gps_lat, t.gps_lon = m.lat * 1e-7, m.lon * 1e-7
 
     def _on_attitude(self, m: Any, now: float) -> None:
-        self.telemetry.yaw_rad = m.yaw
+        self.telemetry.yaw_rad = m.yaw if math.isfinite(m.yaw) else None
 
     def _on_vfr_hud(self, m: Any, now: float) -> None:
-        self.telemetry.ground_speed_mps = m.groundspeed
+        if math.isfinite(m.groundspeed):
+            self.telemetry.ground_speed_mps = m.groundspeed
 
     def _on_sys_status(self, m: Any, now: float) -> None:
         t = self.telemetry
         if m.voltage_battery != 65535:
             t.battery_voltage_v = m.voltage_battery * 1e-3
         t.battery_current_a = None if m.current_battery == -1 else m.current_battery * 0.01
-        t.battery_percent = None if m.battery_remaining == -1 else float(m.battery_remaining)
+        t.battery_percent = _percent(m.battery_remaining)
 
     def _on_battery_status(self, m: Any, now: float) -> None:
         if m.id != 0:
@@ -737,10 +750,11 @@ class Autopilot:
         if m.current_battery != -1:
             t.battery_current_a = m.current_battery * 0.01
         if m.battery_remaining != -1:
-            t.battery_percent = float(m.battery_remaining)
+            t.battery_percent = _percent(m.battery_remaining)
 
     def _on_home(self, m: Any, now: float) -> None:
-        self.telemetry.home = (m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3)
+        if _on_earth(m.latitude, m.longitude):
+            self.telemetry.home = (m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3)
 
     def _on_extended_state(self, m: Any, now: float) -> None:
         self.telemetry.landed_state = m.landed_state or None
@@ -1160,6 +1174,16 @@ class Autopilot:
             )
         )
         return self._new(f"request_streams {rate_hz:g} Hz", steps, on_done)
+
+
+def _on_earth(lat_e7: int, lon_e7: int) -> bool:
+    """Whether 1e-7-degree coordinates are a place (a corrupt-but-valid frame may not be)."""
+    return -900_000_000 <= lat_e7 <= 900_000_000 and -1_800_000_000 <= lon_e7 <= 1_800_000_000
+
+
+def _percent(remaining: int) -> float | None:
+    """battery_remaining: -1 (unknown) and anything outside 0..100 read as unknown."""
+    return float(remaining) if 0 <= remaining <= 100 else None
 
 
 def _describe_hb(m: Any) -> str:
