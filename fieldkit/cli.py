@@ -27,6 +27,9 @@ def _add_subcommands() -> None:
     from fieldkit.autopilot.cli import vehicle_sim_cmd
 
     app.command("vehicle-sim")(vehicle_sim_cmd)
+    from fieldkit.node.cli import node_cmd
+
+    app.command("node")(node_cmd)
 
 
 _add_subcommands()

@@ -41,6 +41,9 @@ RECOVERY_S = 3.0
 
 HEARTBEAT_LOST = "autopilot heartbeat lost"
 
+#: A discrete command (takeoff, land...) repeated by the script is re-sent after this long.
+RESEND_S = 5.0
+
 
 @dataclass(frozen=True)
 class Order:
@@ -84,6 +87,9 @@ class Supervisor:
         self.events: list[str] = []  # what the supervisor did and why, for the node's log
         self._healthy = 0  # ticks of healthy heartbeat since a heartbeat-loss failsafe
         self.recovery_ticks = round(RECOVERY_S * profile.node.loop_rate_hz)
+        self.resend_ticks = round(RESEND_S * profile.node.loop_rate_hz)
+        self._sent: dict[Order, int] = {}  # the last discrete order and when it went out
+        self._now = 0  # ticks
         self.clamped = 0  # setpoints changed by the fence or the ceiling
 
     # ------------------------------------------------------------ inputs
@@ -131,20 +137,30 @@ class Supervisor:
                     self.events.append("autopilot link recovered: script resumed")
                     self.failsafe = self.action = None
             return None
+        self._now += 1
         while self.queue:
             c = self.queue.popleft()
             if c.kind == "goto":
                 self.target = self._fenced(v, c.args)
                 continue  # the carrot below follows the newest target
-            self.target = None
             if c.kind == "takeoff":
                 if self.ground:
                     self.events.append("takeoff refused: ground robot")
                     continue
-                return Order("takeoff", (min(c.args[0], self.ceiling),))
-            if c.kind in ("land", "rtl", "arm", "disarm", "hold"):
-                return Order(c.kind)
-            # camera and other auxiliary commands do not move the vehicle
+                order = Order("takeoff", (min(c.args[0], self.ceiling),))
+            elif c.kind in ("land", "rtl", "arm", "disarm", "hold"):
+                order = Order(c.kind)
+            else:
+                continue  # camera and other auxiliary commands do not move the vehicle
+            # Scripts repeat a command every step until it shows (ROSBuzz's launch calls
+            # uav_takeoff each tick): the autopilot gets it once, again only if it has had
+            # RESEND_S to act and the script still asks.
+            last = self._sent.get(order)
+            if last is not None and self._now - last < self.resend_ticks:
+                continue
+            self._sent = {order: self._now}
+            self.target = None
+            return order
         if self.target is not None:
             return Order("goto", self._carrot(v, self.target))
         return None

@@ -121,3 +121,17 @@ def test_the_pilot_always_wins() -> None:
     sup.script_error("x")
     assert sup.tick(flying(rc_override=True)) is None
     assert sup.tick(flying()) == Order("hold")
+
+
+def test_a_command_repeated_every_step_goes_out_once_then_after_the_resend_delay() -> None:
+    sup = fenced_solo()
+    ground = flying(flying=False, alt=0.0)
+    sent = []
+    for _ in range(sup.resend_ticks + 5):
+        sup.submit([Command("takeoff", (10.0,))])
+        sent.append(sup.tick(ground))
+    assert sent[0] == Order("takeoff", (10.0,))
+    assert sent[1 : sup.resend_ticks] == [None] * (sup.resend_ticks - 1)
+    assert sent[sup.resend_ticks] == Order("takeoff", (10.0,))
+    sup.submit([Command("land")])
+    assert sup.tick(flying()) == Order("land")  # another command goes at once

@@ -1,0 +1,1 @@
+"""The field node: the script on a real robot, against its autopilot and radio."""

@@ -1,0 +1,77 @@
+"""The field node's view of its autopilot: `fieldkit.autopilot.link.Autopilot` as telemetry
+snapshots in, supervisor orders out."""
+
+from __future__ import annotations
+
+import logging
+
+from fieldkit import geo
+from fieldkit.autopilot.link import Autopilot
+from fieldkit.node.runtime import Telemetry
+from fieldkit.safety import Order
+from fieldkit.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
+
+_log = logging.getLogger("fieldkit.node")
+
+
+class MavlinkAutopilot:
+    """Adapts a MAVLink `Autopilot` link to the node's `AutopilotPort`."""
+
+    def __init__(self, link: Autopilot, home: tuple[float, float, float]) -> None:
+        self.link = link
+        self.home = home  # where the node's frame starts: used until the first position
+
+    def poll(self) -> None:
+        """Read the line, move pending commands on, send our heartbeat."""
+        self.link.poll()
+        for event in self.link.drain_events():
+            _log.info("autopilot: %s", event)
+
+    def telemetry(self) -> Telemetry:
+        """The latest state; the last known position (or home) while none is reported."""
+        t = self.link.telemetry
+        lat = t.lat if t.lat is not None else self.home[0]
+        lon = t.lon if t.lon is not None else self.home[1]
+        alt = t.alt_rel_m if t.alt_rel_m is not None else 0.0
+        if t.landed_state in (ON_GROUND, IN_AIR, TAKING_OFF, LANDING):
+            status = t.landed_state
+        else:
+            status = IN_AIR if t.armed and alt > 0.3 else ON_GROUND
+        return Telemetry(
+            lat=lat,
+            lon=lon,
+            alt=alt,
+            yaw=t.yaw_rad or 0.0,
+            voltage=t.battery_voltage_v or 0.0,
+            current=t.battery_current_a or 0.0,
+            battery_percent=t.battery_percent if t.battery_percent is not None else 100.0,
+            armed=t.armed,
+            flying=status != ON_GROUND,
+            heartbeat_age_s=self.link.heartbeat_age(),
+            rc_override=self.link.pilot_override,
+            status=status,
+        )
+
+    def execute(self, order: Order, frame: geo.LocalFrame) -> None:
+        """Start one supervisor order on the autopilot (commands are ACK-checked there)."""
+        link = self.link
+        kind = order.kind
+        if kind == "goto":
+            north, east, alt = order.args
+            lat, lon, _ = frame.to_gps(east, north, 0.0)
+            link.goto(lat, lon, alt)
+        elif kind == "takeoff":
+            link.takeoff(order.args[0])
+        elif kind in ("land", "rtl", "hold"):
+            # A safety order supersedes whatever is still queued (a takeoff waiting for its
+            # turn would undo it).
+            link.cancel_all(f"superseded by {kind}")
+            getattr(link, kind)()
+        elif kind == "arm":
+            link.arm()
+        elif kind == "disarm":
+            link.disarm()
+
+    def counters(self) -> tuple[int, int]:
+        """(MAVLink messages received, bad frames)."""
+        return self.link.messages, self.link.bad_frames

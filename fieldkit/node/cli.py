@@ -1,0 +1,157 @@
+"""`fieldkit node`: run a behavior on this robot, against its autopilot and radio."""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import socket
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+import bvm
+from bvm.errors import BuzzCompileError
+
+_log = logging.getLogger("fieldkit.node")
+
+
+def _fail(message: str) -> typer.Exit:
+    typer.echo(f"error: {message}", err=True)
+    return typer.Exit(1)
+
+
+def parse_command(text: str) -> object:
+    """`T:CODE[:P...]` for this robot (`fieldkit sim run` has T:ROBOT:CODE)."""
+    from fieldkit.node.runtime import ScheduledCommand
+
+    parts = text.split(":")
+    try:
+        if len(parts) < 2:
+            raise ValueError
+        t, code = float(parts[0]), int(parts[1])
+        params = tuple(float(p) for p in parts[2:])
+    except ValueError:
+        raise _fail(f"--command {text!r}: expected T:CODE[:PARAMS...], e.g. 5:22") from None
+    if t < 0:
+        raise _fail(f"--command {text!r}: time must be >= 0 seconds")
+    return ScheduledCommand(t, code, params)
+
+
+def robot_id_from(profile: object, given: int | None) -> int:
+    """The robot id: --robot-id, else the profile's source (a value, or the hostname's digits)."""
+    if given is not None:
+        if not 0 <= given <= 255:
+            raise _fail(f"--robot-id must be 0..255, got {given}")
+        return given
+    rid = profile.robot_id  # type: ignore[attr-defined]
+    if rid.source == "config" and rid.value is not None:
+        return int(rid.value)
+    if rid.source == "hostname":
+        m = re.search(r"(\d+)$", socket.gethostname())
+        if m and int(m.group(1)) <= 255:
+            return int(m.group(1))
+        raise _fail(f"the host name {socket.gethostname()!r} ends in no robot id: use --robot-id")
+    raise _fail(f"robot_id.source = {rid.source!r}: give --robot-id")
+
+
+def node_cmd(
+    profile: Annotated[str, typer.Option("--profile", help="Device profile (name or .toml).")],
+    script: Annotated[Path, typer.Option("--script", help="The behavior, a .bzz or .bo.")],
+    autopilot: Annotated[
+        str | None, typer.Option("--autopilot", help="pymavlink URL (default: the profile's).")
+    ] = None,
+    radio: Annotated[
+        str | None,
+        typer.Option("--radio", help="Radio URL (xbee serial, udp://...) or none."),
+    ] = None,
+    robot_id: Annotated[int | None, typer.Option("--robot-id", help="This robot's id.")] = None,
+    seconds: Annotated[
+        float | None, typer.Option("--seconds", help="Stop after T seconds.")
+    ] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="Write DIR/summary.json.")] = None,
+    include: Annotated[
+        list[Path] | None, typer.Option("-I", "--include", help="Extra include directory.")
+    ] = None,
+    command: Annotated[
+        list[str] | None,
+        typer.Option("--command", help="T:CODE[:P...]: a remote-control code at second T."),
+    ] = None,
+    connect_timeout: Annotated[
+        float, typer.Option("--connect-timeout", help="Seconds to wait for the autopilot.")
+    ] = 30.0,
+) -> None:
+    """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
+    from fieldkit.autopilot.link import Autopilot, AutopilotError
+    from fieldkit.node.autopilot_port import MavlinkAutopilot
+    from fieldkit.node.runtime import Node
+    from fieldkit.profiles import ProfileError, load_profile
+
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        prof = load_profile(profile)
+    except (ProfileError, OSError) as e:
+        raise _fail(str(e)) from None
+    rid = robot_id_from(prof, robot_id)
+    commands = [parse_command(c) for c in command or []]
+    try:
+        if script.suffix == ".bo":
+            program = bvm.Program.load(script)
+        else:
+            program = bvm.compile_file(script, include_dirs=[str(d) for d in include or []])
+    except (BuzzCompileError, bvm.BuzzLoadError) as e:
+        raise _fail(str(e)) from None
+    try:
+        link = Autopilot.from_profile(prof, autopilot)
+        link.wait_heartbeat(connect_timeout)
+        link.request_streams(prof.node.loop_rate_hz)
+        t = link.wait_gps_fix(prof.autopilot.gps_fix_timeout_s)
+    except AutopilotError as e:
+        raise _fail(str(e)) from None
+    home = t.home if t.home is not None else (t.lat or 0.0, t.lon or 0.0, 0.0)
+    home = (home[0], home[1], 0.0)
+    link_radio = None
+    if radio is not None and radio != "none":
+        from fieldkit.radio import open_radio
+
+        try:
+            link_radio = open_radio(radio, rid)
+        except (OSError, ValueError) as e:
+            raise _fail(f"--radio {radio}: {e}") from None
+
+    def say(text: str) -> None:
+        sys.stdout.write(text + "\n")
+        sys.stdout.flush()
+
+    node = Node(
+        prof,
+        program,
+        rid,
+        MavlinkAutopilot(link, home),
+        link_radio,
+        home=home,
+        commands=commands,  # type: ignore[arg-type]
+        out=say,
+    )
+    try:
+        node.run(seconds)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if node.vm.gload("destroy") is not None and node.script_ok:
+            try:
+                node.vm.call("destroy")
+            except bvm.BuzzError as e:
+                node.errors.append(str(e))
+        link.close()
+        if link_radio is not None:
+            link_radio.close()
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "summary.json").write_text(
+            json.dumps(node.summary(), indent=2, sort_keys=True) + "\n", encoding="utf-8"
+        )
+    for err in node.errors:
+        typer.echo(err, err=True)

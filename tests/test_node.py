@@ -1,0 +1,110 @@
+"""The field node end to end: the VM, the supervisor and a MAVLink vehicle on a real pty.
+
+The vehicle is fieldkit's simulated ArduPilot (`SimRig`: the vehicle and pymavlink link on
+the two ends of a pty, stepped in lockstep on a simulated clock), so the node's whole path
+runs: telemetry in, script step, supervisor, MAVLink commands with their ACKs, out.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+
+import pytest
+
+import bvm
+from fieldkit.autopilot.vehicle_sim import SimRig
+from fieldkit.node.autopilot_port import MavlinkAutopilot
+from fieldkit.node.runtime import Node, ScheduledCommand
+
+HOME = (45.5049, -73.6133)
+
+FLY = """
+function init() { BVMSTATE = "TURNEDOFF" }
+function step() {
+  if (flight.rc_cmd == 22) BVMSTATE = "TAKEOFF"
+  if (BVMSTATE == "TAKEOFF") {
+    uav_takeoff(TARGET_ALTITUDE)
+    if (pose.position.altitude > TARGET_ALTITUDE * 0.9) {
+      BVMSTATE = "GO"
+      goto_abs(10.0, 0.0, 0.0, 0.0)
+    }
+  }
+  if (BVMSTATE == "GO" and BROKEN == 1) { var crash = 1 / 0 }
+  log(BVMSTATE, " ", pose.position.altitude)
+}
+"""
+
+
+@pytest.fixture
+def rig() -> Iterator[SimRig]:
+    r = SimRig("solo", home=HOME, gps_fix_delay_s=0.0)
+    r.connect()
+    assert r.run_until(lambda: r.link.telemetry.gps_fix_type >= 3, 10.0)
+    yield r
+    r.close()
+
+
+def make_node(rig: SimRig, src: str, lines: list[str], **globals_: object) -> Node:
+    t = rig.link.telemetry
+    home = (t.lat, t.lon, 0.0)
+    program = bvm.compile_source(src.replace("BROKEN == 1", f"{globals_.get('BROKEN', 0)} == 1"))
+    return Node(
+        rig.profile,
+        program,
+        3,
+        MavlinkAutopilot(rig.link, home),  # type: ignore[arg-type]
+        None,
+        home=home,  # type: ignore[arg-type]
+        commands=[ScheduledCommand(0.5, 22)],
+        clock=rig.clock,
+        out=lines.append,
+    )
+
+
+def run(rig: SimRig, node: Node, seconds: float) -> None:
+    for _ in range(round(seconds * 10)):
+        node.tick()
+        rig.tick()
+
+
+def test_the_node_flies_the_script(rig: SimRig) -> None:
+    lines: list[str] = []
+    node = make_node(rig, FLY, lines)
+    run(rig, node, 40.0)
+    v = rig.sim.vehicle
+    alt = rig.profile.kinematics.takeoff_altitude_m
+    assert v.z == pytest.approx(alt, abs=0.5)
+    assert v.y == pytest.approx(10.0, abs=1.0)  # 10 m north of where it took off
+    summary = node.summary()
+    assert summary["final_state"] == "GO"
+    assert summary["ticks"] == 400 and summary["errors"] == []
+    assert summary["mavlink_messages"] > 100 and summary["mavlink_bad_frames"] == 0
+    assert lines[0].startswith("[3] TURNEDOFF")
+
+
+def test_a_script_error_holds_the_vehicle_and_the_node_goes_on(rig: SimRig) -> None:
+    lines: list[str] = []
+    node = make_node(rig, FLY, lines, BROKEN=1)
+    run(rig, node, 30.0)
+    summary = node.summary()
+    assert len(summary["errors"]) == 1 and "division by zero" in summary["errors"][0]  # type: ignore[index]
+    assert ":12:" in summary["errors"][0]  # type: ignore[index]
+    assert summary["failsafe"].startswith("script error")  # type: ignore[union-attr]
+    assert rig.link.telemetry.mode == rig.profile.autopilot.loiter_mode  # solo: hold = LOITER
+    assert rig.sim.vehicle.z >= 4.5  # hovering, not landed or falling
+    assert summary["ticks"] == 300  # every tick ran
+
+
+def test_garbage_on_the_autopilot_line_costs_only_a_counter(rig: SimRig) -> None:
+    lines: list[str] = []
+    node = make_node(rig, FLY, lines)
+    for k in range(300):
+        node.tick()
+        rig.tick()
+        if k % 20 == 5:
+            noise = b"\xfe\x09garbage\xfd\x00\x00" + bytes(range(40))
+            os.write(rig.pty.master, noise)
+            rig.sim.bytes_sent += len(noise)  # the rig waits for every byte on the line
+    assert node.summary()["mavlink_bad_frames"] > 0
+    assert node.summary()["final_state"] == "GO"
