@@ -1,0 +1,104 @@
+"""The largest swarm the simulator runs at real time on one core, with the coverage behavior.
+
+    python bench/sim_scale.py [--sizes 250,500,1000,2000] [--measure 5]
+
+Real time: 10 ticks per simulated second for every robot, so a swarm of N robots runs at
+real time when one tick of all N robots takes at most 0.1 s. For each size the robots take
+off, learn four hotspots spanning a square region sized for the swarm (about 150 m² each),
+and run the Voronoi coverage (RC 901); once they are deploying, the bench measures the CPU
+time (process time: this process, one core) of `--measure` simulated seconds. It prints the
+ticks per second at each size and the largest real-time size, interpolated between the two
+sizes that bracket 10 ticks/s (or the largest size measured, if all are real time).
+
+Robots start on a grid 8 m apart with a 20 m radio range (about 8-12 neighbours each), the
+density of a coverage deployment; the radio drops nothing (losses make less traffic).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+from fieldkit import geo
+from fieldkit.sim.simulator import DEFAULT_ORIGIN, TICK_S, RcCommand, SimConfig, Simulation
+
+ROOT = Path(__file__).resolve().parent.parent
+SCRIPT = ROOT / "buzz_scripts" / "coverage.bzz"
+AREA_PER_ROBOT_M2 = 150.0
+SPACING_M = 8.0
+RANGE_M = 20.0
+DEPLOY_AT_S = 8.0  # after takeoff and the hotspots
+
+
+def scenario(robots: int, seconds: float) -> SimConfig:
+    """Takeoff, four hotspots around the swarm's start, then DEPLOY."""
+    frame = geo.LocalFrame(*DEFAULT_ORIGIN)
+    side = math.sqrt(robots * AREA_PER_ROBOT_M2)
+    start = math.ceil(math.sqrt(robots)) * SPACING_M  # the start grid's side
+    centre = start / 2.0
+    commands = [RcCommand(0.5, 1, 22)]
+    for k, (dx, dy) in enumerate(((-1, -1), (1, -1), (1, 1), (-1, 1))):
+        east, north = centre + dx * side / 2.0, centre + dy * side / 2.0
+        lat, lon, _ = frame.to_gps(east, north, 0.0)
+        commands.append(RcCommand(1.0 + 0.2 * k, 1, 16, (50.0 + k, lat, lon, 0.0)))
+    commands.append(RcCommand(DEPLOY_AT_S - 2.0, 1, 901))
+    return SimConfig(
+        script=SCRIPT,
+        robots=robots,
+        seconds=seconds,
+        range_m=RANGE_M,
+        spacing_m=SPACING_M,
+        commands=commands,
+        include_dirs=(str(ROOT / "buzz_scripts"),),
+        seed=1,
+    )
+
+
+def ticks_per_second(robots: int, measure_s: float) -> tuple[float, dict[str, int]]:
+    """CPU-time ticks per second of `robots` deploying; and the states they were in."""
+    warm = DEPLOY_AT_S + 4.0
+    sim = Simulation(scenario(robots, warm + measure_s))
+    while sim.tick < round(warm / TICK_S):
+        sim.step()
+    ticks = round(measure_s / TICK_S)
+    t0 = time.process_time()
+    for _ in range(ticks):
+        sim.step()
+    spent = time.process_time() - t0
+    states: dict[str, int] = {}
+    for r in sim.robots.values():
+        states[str(r.state)] = states.get(str(r.state), 0) + 1
+    return ticks / spent, states
+
+
+def main() -> None:
+    """Measure each size and print the largest real-time swarm."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="250,500,1000,2000")
+    ap.add_argument("--measure", type=float, default=5.0, help="simulated seconds measured")
+    args = ap.parse_args()
+    sizes = sorted(int(s) for s in args.sizes.split(","))
+    results: list[tuple[int, float]] = []
+    print(f"{'robots':>7s} {'ticks/s':>8s} {'x real time':>12s}  states")
+    for n in sizes:
+        tps, states = ticks_per_second(n, args.measure)
+        results.append((n, tps))
+        print(f"{n:7d} {tps:8.2f} {tps * TICK_S:12.2f}  {states}")
+    fast = [(n, t) for n, t in results if t >= 1 / TICK_S]
+    slow = [(n, t) for n, t in results if t < 1 / TICK_S]
+    if not fast:
+        best = 0
+    elif not slow or slow[0][0] < fast[-1][0]:
+        best = fast[-1][0]
+    else:
+        # The time of one tick grows about linearly with N: interpolate N at 0.1 s a tick.
+        (n1, t1), (n2, t2) = fast[-1], slow[0]
+        s1, s2 = 1 / t1, 1 / t2
+        best = int(n1 + (TICK_S - s1) * (n2 - n1) / (s2 - s1))
+    print(f"largest swarm at real time on one core: {best} robots")
+
+
+if __name__ == "__main__":
+    main()
