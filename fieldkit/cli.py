@@ -30,6 +30,9 @@ def _add_subcommands() -> None:
     from fieldkit.node.cli import node_cmd
 
     app.command("node")(node_cmd)
+    from fieldkit.sitl_cli import sitl_cmd
+
+    app.command("sitl")(sitl_cmd)
 
 
 _add_subcommands()

@@ -1,0 +1,247 @@
+"""Software in the loop: N simulated autopilots, N real field nodes, one simulated radio.
+
+    fieldkit sitl --robots 6 --script buzz_scripts/task_allocation.bzz --out run/
+
+Every robot is the real thing but its vehicle and its radio:
+
+* a `SimVehicle` (fieldkit's ArduPilot-like MAVLink vehicle) on a pseudo-terminal, stepped in
+  real time here;
+* a `fieldkit node` process, exactly as on the robot's companion computer, opening that pty
+  as its autopilot and a second pty as its XBee (API mode 1, XbeeMav packets);
+* the `RadioRelay` here: it reads each node's XBee transmit frames (0x10) and hands them as
+  receive frames (0x90) to the robots in range, dropping each with the simulator's
+  probability. So the bytes between nodes are the bytes on the air in the field.
+
+Real time, real processes: runs are not reproducible bit for bit (that is the simulator's job).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import subprocess
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from fieldkit import geo
+from fieldkit.autopilot.vehicle_sim import DEFAULT_HOME, PtyPair, SimVehicle, open_pty
+from fieldkit.profiles import Profile
+from fieldkit.radio.xbee import FrameReader, TransmitRequest, receive_packet
+
+#: Where robot i's XBee serial numbers start (Digi's OUI prefix, as real modules have).
+SERIAL_BASE = 0x0013A20000000000
+
+#: The vehicles are stepped (and the relay serviced) this often, seconds.
+STEP_S = 0.05
+
+
+@dataclass
+class SitlRobot:
+    """One robot of the run: its vehicle, its ptys, its node process."""
+
+    id: int
+    vehicle: SimVehicle
+    autopilot_pty: PtyPair
+    radio_pty: PtyPair
+    reader: FrameReader
+    out: Path
+    process: subprocess.Popen[bytes] | None = None
+    bytes_sent: int = 0
+    log: object = None
+
+
+class RadioRelay:
+    """Carries XBee frames between the robots' radio ptys: range, drop, bytes counted."""
+
+    def __init__(
+        self,
+        robots: Sequence[SitlRobot],
+        drop: float,
+        range_m: float,
+        seed: int,
+        corrupt: float = 0.0,
+    ) -> None:
+        self.robots = list(robots)
+        self.drop = drop
+        self.corrupt = corrupt  # probability that a delivered frame gets one byte flipped
+        self.range_m = range_m
+        self.rng = random.Random(seed)
+        self.stats: Counter[str] = Counter()
+
+    def service(self) -> None:
+        """Forward every complete transmit frame the nodes wrote since the last call."""
+        for sender in self.robots:
+            try:
+                data = os.read(sender.radio_pty.master, 65536)
+            except (BlockingIOError, OSError):
+                continue
+            for frame in sender.reader.feed(data):
+                if isinstance(frame, TransmitRequest):
+                    self._forward(sender, frame.rf_data)
+                else:
+                    self.stats["other_frames"] += 1
+
+    def _forward(self, sender: SitlRobot, rf: bytes) -> None:
+        sender.bytes_sent += len(rf)
+        self.stats["frames"] += 1
+        here = sender.vehicle.vehicle
+        frame = receive_packet(SERIAL_BASE + sender.id, rf)
+        for r in self.robots:
+            if r is sender:
+                continue
+            there = r.vehicle.vehicle
+            if math.dist((here.x, here.y, here.z), (there.x, there.y, there.z)) > self.range_m:
+                continue
+            if self.drop and self.rng.random() < self.drop:
+                self.stats["dropped"] += 1
+                continue
+            out = frame
+            if self.corrupt and self.rng.random() < self.corrupt:
+                k = self.rng.randrange(len(frame))
+                out = frame[:k] + bytes([frame[k] ^ (1 << self.rng.randrange(8))]) + frame[k + 1 :]
+                self.stats["corrupted"] += 1
+            try:
+                os.write(r.radio_pty.master, out)
+                self.stats["delivered"] += 1
+            except (BlockingIOError, OSError):
+                self.stats["overflow"] += 1  # the node is not reading: a full UART drops
+
+
+@dataclass
+class SitlConfig:
+    """One software-in-the-loop run."""
+
+    script: Path
+    robots: int
+    out: Path
+    profile: Profile
+    drop: float = 0.0
+    corrupt: float = 0.0  # share of delivered frames with a flipped bit (for tests)
+    range_m: float = 500.0
+    seconds: float = 60.0
+    seed: int = 0
+    commands: Sequence[tuple[float, int, int]] = ()  # (t, robot, code)
+    include_dirs: Sequence[str] = ()
+    spacing_m: float = 4.0
+    home: tuple[float, float] = DEFAULT_HOME
+    extra: list[str] = field(default_factory=list)  # more `fieldkit node` arguments
+
+
+def _homes(cfg: SitlConfig) -> list[tuple[float, float]]:
+    frame = geo.LocalFrame(cfg.home[0], cfg.home[1], 0.0)
+    side = max(1, math.ceil(math.sqrt(cfg.robots)))
+    out = []
+    for k in range(cfg.robots):
+        lat, lon, _ = frame.to_gps((k % side) * cfg.spacing_m, (k // side) * cfg.spacing_m, 0.0)
+        out.append((lat, lon))
+    return out
+
+
+def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None) -> dict:
+    """Run the swarm for `cfg.seconds` and return the summary (also written to out/)."""
+    cfg.out.mkdir(parents=True, exist_ok=True)
+    robots: list[SitlRobot] = []
+    try:
+        for k, home in enumerate(_homes(cfg)):
+            rid = k + 1
+            ap, radio = open_pty(), open_pty()
+            vehicle = SimVehicle(cfg.profile, ap.master, home=home, seed=cfg.seed * 1000 + rid)
+            robots.append(
+                SitlRobot(rid, vehicle, ap, radio, FrameReader(1), cfg.out / f"robot{rid}")
+            )
+        relay = RadioRelay(robots, cfg.drop, cfg.range_m, cfg.seed, cfg.corrupt)
+        for r in robots:
+            r.out.mkdir(parents=True, exist_ok=True)
+            argv = [
+                sys.executable,
+                "-m",
+                "fieldkit",
+                "node",
+                "--profile",
+                str(cfg.profile.path or cfg.profile.name),
+                "--script",
+                str(cfg.script),
+                "--autopilot",
+                r.autopilot_pty.slave_path,
+                "--radio",
+                f"serial://{r.radio_pty.slave_path}?baud=230400&api=1&unknown=sysid",
+                "--robot-id",
+                str(r.id),
+                "--seconds",
+                str(cfg.seconds),
+                "--out",
+                str(r.out),
+                *(a for d in cfg.include_dirs for a in ("-I", d)),
+                *cfg.extra,
+            ]
+            for t, rid, code in cfg.commands:
+                if rid == r.id:
+                    argv += ["--command", f"{t:g}:{code}"]
+            r.log = (r.out / "log.txt").open("wb")
+            r.process = subprocess.Popen(argv, stdout=r.log, stderr=subprocess.STDOUT)
+        start = time.monotonic()
+        last = start
+        deadline = start + cfg.seconds + 60.0  # start-up (GPS fix, imports) and wind-down
+        while any(r.process.poll() is None for r in robots):  # type: ignore[union-attr]
+            now = time.monotonic()
+            if now > deadline:
+                for r in robots:
+                    if r.process.poll() is None:  # type: ignore[union-attr]
+                        r.process.kill()  # type: ignore[union-attr]
+                break
+            for r in robots:
+                r.vehicle.step(now - last)
+            last = now
+            relay.service()
+            if progress is not None:
+                progress(min(now - start, cfg.seconds), cfg.seconds)
+            time.sleep(STEP_S)
+    finally:
+        for r in robots:
+            if r.process is not None and r.process.poll() is None:
+                r.process.kill()
+                r.process.wait()
+            if r.log is not None:
+                r.log.close()  # type: ignore[attr-defined]
+            r.vehicle.close()
+            r.autopilot_pty.close()
+            r.radio_pty.close()
+    return _summary(cfg, robots, relay)
+
+
+def _summary(cfg: SitlConfig, robots: list[SitlRobot], relay: RadioRelay) -> dict:
+    states: dict[str, object] = {}
+    errors: list[dict[str, object]] = []
+    nodes: dict[str, object] = {}
+    for r in robots:
+        path = r.out / "summary.json"
+        node: dict[str, object] = {}
+        if path.exists():
+            node = json.loads(path.read_text(encoding="utf-8"))
+        else:
+            tail = (r.out / "log.txt").read_text(encoding="utf-8", errors="replace")[-2000:]
+            errors.append({"robot": r.id, "error": f"node did not finish: {tail.strip()}"})
+        states[str(r.id)] = node.get("final_state")
+        for e in node.get("errors", []):  # type: ignore[union-attr]
+            errors.append({"robot": r.id, "error": e})
+        nodes[str(r.id)] = node
+    summary = {
+        "robots": cfg.robots,
+        "seconds": cfg.seconds,
+        "drop": cfg.drop,
+        "final_states": states,
+        "bytes_sent_per_robot": {str(r.id): r.bytes_sent for r in robots},
+        "relay": dict(relay.stats),
+        "errors": errors,
+        "nodes": nodes,
+    }
+    (cfg.out / "summary.json").write_text(
+        json.dumps(summary, indent=2, sort_keys=True) + "\n", encoding="utf-8"
+    )
+    return summary
