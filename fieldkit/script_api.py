@@ -141,9 +141,14 @@ class ScriptAPI:
         if self.cur_goal is None:
             self.cur_goal = (s.lat, s.lon, s.alt)
         g = self.vm.globals
+        # Buzz floats are binary32: GPS degrees lose about a metre here, as in ROSBuzz.
         g["pose"] = Table(
             position=Table(
-                latitude=s.lat, longitude=s.lon, altitude=f32(s.alt), x=f32(s.north), y=f32(s.east)
+                latitude=f32(s.lat),
+                longitude=f32(s.lon),
+                altitude=f32(s.alt),
+                x=f32(s.north),
+                y=f32(s.east),
             ),
             orientation=Table(yaw=f32(s.yaw)),
         )
@@ -159,7 +164,7 @@ class ScriptAPI:
         elif "rc_goto" not in g:
             g["rc_goto"] = Table(id=-1, latitude=0.0, longitude=0.0, altitude=0.0)
         lat, lon, alt = self.cur_goal
-        g["cur_goal"] = Table(latitude=lat, longitude=lon, altitude=f32(alt))
+        g["cur_goal"] = Table(latitude=f32(lat), longitude=f32(lon), altitude=f32(alt))
         self.vm.set_neighbors(neighbors)
 
     def after_step(self) -> list[Command]:
@@ -222,7 +227,9 @@ class ScriptAPI:
             )
             return False
         self.cur_goal = (lat, lon, alt)
-        self.vm.globals["cur_goal"] = Table(latitude=lat, longitude=lon, altitude=f32(alt))
+        self.vm.globals["cur_goal"] = Table(
+            latitude=f32(lat), longitude=f32(lon), altitude=f32(alt)
+        )
         return True
 
     def _storegoal(self, lat: Any, lon: Any, alt: Any) -> None:
