@@ -108,3 +108,31 @@ def test_garbage_on_the_autopilot_line_costs_only_a_counter(rig: SimRig) -> None
             rig.sim.bytes_sent += len(noise)  # the rig waits for every byte on the line
     assert node.summary()["mavlink_bad_frames"] > 0
     assert node.summary()["final_state"] == "GO"
+
+
+def test_heartbeat_loss_lands_once_the_link_is_back(rig: SimRig) -> None:
+    # solo: on_heartbeat_loss = "land". The vehicle keeps flying its last target while
+    # silent (its own failsafes are its business); when the link returns, the node lands it.
+    lines: list[str] = []
+    node = make_node(rig, FLY, lines)
+    run(rig, node, 20.0)
+    assert node.state == "GO"
+    rig.sim.faults.heartbeats = False
+    run(rig, node, 5.0)
+    assert node.supervisor.failsafe == "autopilot heartbeat lost"
+    rig.sim.faults.heartbeats = True
+    run(rig, node, 20.0)
+    assert rig.sim.vehicle.z == pytest.approx(0.0, abs=0.1)  # landed
+    assert node.summary()["errors"] == []
+
+
+def test_the_pilot_override_always_wins(rig: SimRig) -> None:
+    lines: list[str] = []
+    node = make_node(rig, FLY, lines)
+    run(rig, node, 15.0)
+    assert rig.sim.pilot_switch("LOITER")  # the backup pilot flips the mode switch
+    before = (rig.sim.vehicle.x, rig.sim.vehicle.y)
+    run(rig, node, 10.0)
+    assert rig.link.telemetry.mode == "LOITER"  # the node did not take it back
+    after = (rig.sim.vehicle.x, rig.sim.vehicle.y)
+    assert after == pytest.approx(before, abs=0.5)
