@@ -8,6 +8,7 @@ scale, with and without 90 % packet loss. Everything is seeded.
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Callable
 from pathlib import Path
 
@@ -330,21 +331,59 @@ def test_ground_robots_skip_takeoff() -> None:
     assert all(r.vehicle.z == 0.0 for r in sim.robots.values())
 
 
+def coverage_vm() -> bvm.VM:
+    """coverage.bzz loaded (global code run), for calling its functions directly."""
+    vm = bvm.VM(robot_id=1)
+    vm.load(bvm.compile_file(SCRIPTS / "coverage.bzz"))
+    vm.register("log", lambda *args: None)
+    vm.execute()
+    return vm
+
+
+def test_buzz_hull_matches_the_python_hull() -> None:
+    rng = random.Random(8)
+    vm = coverage_vm()
+    for n in (3, 4, 10, 40):
+        pts = [(rng.uniform(-50, 50), rng.uniform(-50, 50)) for _ in range(n)]
+        pts.append(pts[0])  # a duplicate
+        pts.append(((pts[1][0] + pts[2][0]) / 2, (pts[1][1] + pts[2][1]) / 2))  # on an edge?
+        hull = vm.call("hull_of", [{"x": x, "y": y} for x, y in pts], len(pts))
+        got = [(hull[k]["x"], hull[k]["y"]) for k in range(len(hull))]
+        want = vor.convex_hull([(f32(x), f32(y)) for x, y in pts])
+        assert len(got) == len(want)
+        assert vor.area(got) == pytest.approx(vor.area(want), rel=1e-5)  # both CCW
+        assert all(min(math.dist(g, w) for w in want) < 1e-4 for g in got)
+
+
+def test_buzz_region_is_the_inflated_hull_of_the_metric() -> None:
+    vm = coverage_vm()
+    centers = [(0.0, 0.0), (40.0, 10.0), (15.0, 60.0), (20.0, 20.0)]
+    vm["HS_LOCAL"] = {k: {"x": x, "y": y} for k, (x, y) in enumerate(centers)}
+    vm["HS_KEYS"] = list(range(len(centers)))
+    vm["HS_COUNT"] = len(centers)
+    vm.call("cov_build_region")
+    region = vm["REGION"]
+    got = [(region[k]["x"], region[k]["y"]) for k in range(vm["REGION_N"])]
+    want = vor.convex_hull(centers, margin=20.0)
+    assert vor.area(got) == pytest.approx(vor.area(want), rel=1e-5)
+    assert all(min(math.dist(g, w) for w in want) < 1e-3 for g in got)
+
+
 HOTSPOTS_EN = [(-10.0, -10.0), (30.0, -10.0), (30.0, 30.0), (-10.0, 30.0), (10.0, 45.0)]
+FAR_HOTSPOTS_EN = [(60.0, 10.0), (100.0, 10.0), (80.0, 50.0)]
 
 
-def coverage_run(drop: float, seed: int):
-    """6 robots: takeoff, five hotspots to two different robots, DEPLOY; until settled."""
+def coverage_run(drop: float, seed: int, hotspots: list[tuple[float, float]] = HOTSPOTS_EN):
+    """6 robots: takeoff, the hotspots to two different robots, DEPLOY; until settled."""
     rc = sim_mod.RcCommand
     frame = geo.LocalFrame(*sim_mod.DEFAULT_ORIGIN)
     cmds = [rc(0.5, 1, 22)]
     seen = []  # the hotspots as robots get them: rc_goto holds binary32 lat/lon
-    for k, (east, north) in enumerate(HOTSPOTS_EN):
+    for k, (east, north) in enumerate(hotspots):
         lat, lon, _ = frame.to_gps(east, north, 0.0)
         cmds.append(rc(2.0 + 0.5 * k, 1 + k % 2, 16, (50.0 + k, lat, lon, 5.0)))
         x, y, _ = frame.from_gps(f32(lat), f32(lon), 0.0)
         seen.append((x, y))
-    cmds.append(rc(6.0, 3, 901))
     boundary = vor.convex_hull(seen, margin=20.0)
 
     def settled(sim) -> bool:
@@ -356,6 +395,7 @@ def coverage_run(drop: float, seed: int):
             and (max(speeds) < 0.05)
         )
 
+    cmds.append(rc(6.0, 3, 901))
     sim = simulate("coverage.bzz", 6, drop, seed, cmds, 120.0, settled)
     pts = [(r.vehicle.x, r.vehicle.y) for r in sim.robots.values()]
     return sim, vor.centroid_distances(pts, boundary)
@@ -366,4 +406,11 @@ def test_coverage_end_to_end(drop: float, seed: int) -> None:
     sim, dists = coverage_run(drop, seed)
     assert all(r.state == "DEPLOY" for r in sim.robots.values())
     assert all(r.vm["HS_COUNT"] == len(HOTSPOTS_EN) for r in sim.robots.values())
+    assert max(dists) < 1.0
+
+
+def test_coverage_brings_robots_in_from_outside_the_region() -> None:
+    # The region is 40+ m away from the takeoff grid: every robot starts outside it, goes
+    # to a random point inside (the voronoi closure), then Lloyd's algorithm takes over.
+    sim, dists = coverage_run(0.5, 3, FAR_HOTSPOTS_EN)
     assert max(dists) < 1.0
