@@ -183,6 +183,16 @@ def test_coverage_metrics_are_those_of_the_robots_positions(tmp_path: Path) -> N
     assert (out / "plot.png").read_bytes()[:8] == PNG_MAGIC
 
 
+def test_the_real_coverage_settles_on_the_centroids() -> None:
+    plan = ex.make_plan("coverage", robots=[4], drops=[0.0], runs=1, seconds=45.0)
+    (result,) = ex.run_plan(plan)
+    assert result.figures["errors"] == []
+    assert result.figures["final_states"] == {"DEPLOY": 4}
+    assert result.figures["final_centroid_distance_max_m"] < 1.0  # type: ignore[operator]
+    start = result.rows[0]["centroid_distance_mean_m"]
+    assert start > 10.0  # on the takeoff grid, far from the centroids
+
+
 def test_the_ground_station_hands_hotspots_then_deploy_to_robot_1() -> None:
     spec = ex.make_plan("coverage", robots=[6], drops=[0.0], runs=1).specs()[0]
     codes = [(c.robot, c.code) for c in spec.commands()]
