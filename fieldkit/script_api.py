@@ -277,7 +277,13 @@ class ScriptAPI:
 
         if len(boundary) < 3:
             return None
-        region = voronoi.convex_hull(boundary)
+        # Scripts usually hand over a hull already (either way round): Qhull only if not.
+        if voronoi.is_convex_ccw(boundary):
+            region = boundary
+        elif voronoi.is_convex_ccw(boundary[::-1]):
+            region = boundary[::-1]
+        else:
+            region = voronoi.convex_hull(boundary)
         if len(region) < 3:
             return None
         if not polygon.inside((0.0, 0.0), region):

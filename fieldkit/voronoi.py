@@ -112,7 +112,7 @@ def centroid(polygon: Sequence[Sequence[float]]) -> Point | None:
     return float(cx) / (6.0 * a), float(cy) / (6.0 * a)
 
 
-def _convex_ccw(polygon: Sequence[Sequence[float]]) -> bool:
+def is_convex_ccw(polygon: Sequence[Sequence[float]]) -> bool:
     """Whether the polygon is already strictly convex and counter-clockwise (a hull)."""
     n = len(polygon)
     if n < 3:
@@ -174,7 +174,7 @@ def bounded_cell(
     the polygon (a site outside it can still own a part) or the polygon has no area.
     Other sites at the same position as this one are ignored: they share its cell.
     """
-    if _convex_ccw(boundary_polygon):
+    if is_convex_ccw(boundary_polygon):
         cell = [(float(x), float(y)) for x, y in boundary_polygon]  # a hull already
     else:
         cell = convex_hull(boundary_polygon)

@@ -129,3 +129,32 @@ def test_polygon_helpers() -> None:
     assert not inside((11.0, 5.0), square) and not inside((5.0, -0.1), square)
     assert segment_exit((5.0, 5.0), (15.0, 5.0), square) == pytest.approx((10.0, 5.0))
     assert segment_exit((2.0, 2.0), (3.0, 3.0), square) is None
+
+
+@pytest.mark.parametrize("clockwise", [False, True])
+def test_voronoi_returns_the_cell_centroid_and_sets_the_goal_halfway(clockwise: bool) -> None:
+    corners = ".0 = {.x = -10.0, .y = -10.0}, .1 = {.x = 10.0, .y = -10.0}, "
+    corners += ".2 = {.x = 10.0, .y = 10.0}, .3 = {.x = -10.0, .y = 10.0}"
+    vm, api, _ = robot(
+        f"""
+        function step() {{
+          var corners = {{ {corners} }}
+          var t = {{.np = 4}}
+          var k = 0
+          while (k < 4) {{
+            if ({int(clockwise)} == 1) t[k] = corners[3 - k] else t[k] = corners[k]
+            k = k + 1
+          }}
+          t[4] = {{.x = 0.0, .y = 0.0}}
+          t[5] = {{.x = 10.0, .y = 0.0}}
+          c = voronoi(t)
+        }}
+        """
+    )
+    s = sensors(north=0.0, east=0.0)
+    api.before_step(s, [])
+    vm.call("step")
+    assert vm["c"]["x"] == pytest.approx(-2.5) and vm["c"]["y"] == pytest.approx(0.0, abs=1e-6)
+    lat, lon, _ = api.cur_goal  # type: ignore[misc]
+    north, east = geo.ned_offset(s.lat, s.lon, lat, lon)
+    assert north == pytest.approx(-1.25, abs=1e-3) and east == pytest.approx(0.0, abs=1e-3)
