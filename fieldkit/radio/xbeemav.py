@@ -1,0 +1,812 @@
+"""XbeeMav application packets and fragmentation (spec wire §9.3-§9.6), and `XBeeRadio`.
+
+Packets (RF data of one XBee frame), byte-compatible with XbeeMav:
+
+* ``'S' | sysid | msgid | words``: a standard packet, when the packet (sysid, msgid and the
+  big-endian payload64 words, S = 2 + 8·nwords bytes) is shorter than 250 bytes. Every
+  ROSBuzz bundle (≤ 234 bytes) takes this path.
+* ``'F' | packet_id | sender address | fragment index | offset (u16 BE) | ≤ 250 bytes``:
+  a fragment of a larger packet, cut into 250-byte chunks; packet_id = msgid.
+* ``'P' | packet_id | sender address | fragment count``: the end-of-packet ping.
+* ``'A' | packet_id | acker address | missing indices...``: the answer to a ping; an empty
+  list means complete.
+
+Addresses are 8-bit robot ids. `XbeeMav` is the protocol engine, with no I/O and an injected
+clock; `XBeeRadio` puts it on a serial port with `fieldkit.radio.xbee` frames.
+
+Where we differ from XbeeMav, and why (none of it changes a byte on the air):
+
+* Sizes: packets up to MAX_PACKET = 255 · 250 = 63,750 bytes (XbeeMav's own limit is 64,000,
+  but a 256-fragment packet's count does not fit the ping's u8, so it can never complete);
+  a packet of exactly 250 bytes is fragmented (XbeeMav silently drops it, spec §9.3).
+* Sending never blocks. Frames wait in queues that `pump()` drains at one frame per
+  `interframe_s` on average (100 ms, spec §9.5; a token bucket of `burst` frames absorbs the
+  node's tick jitter), adapted by ±5 ms after each large packet as XbeeMav does, within
+  [½, 2] times the configured value. Acks go first; while a large packet is in flight,
+  standard packets and the packet's frames alternate (XbeeMav holds standard packets back
+  for the whole transfer, up to 30 s of a robot's heartbeat); the standard queue keeps the
+  newest `max_standard_queue` packets (older ones are dropped and counted).
+* A transfer's rounds: send the pending fragments, ping, wait `round_wait_s` (500 ms) for
+  acks, resend what acks report missing (or only the ping when nothing was reported), until
+  every known node has acked or `drop_timeout_s` (30 s of wall time; XbeeMav's constant is
+  process CPU time) has passed. Known nodes are the robots heard (any packet, 'S' included;
+  XbeeMav counts only F/P/A) within `node_ttl_s` (XbeeMav never forgets one, so a robot that
+  left makes every later transfer run to the timeout). With no known node a transfer is one
+  round. Nodes are identified by the link-level sender id, not the address byte.
+* Reassembly: up to `max_partials_per_sender` packets in progress per sender (XbeeMav: 1, a
+  new packet id resets it) and `max_partial_bytes` / `max_partials` in all, evicting the
+  least recently active; fragments are stored by index and the packet is assembled only when
+  the offsets tile it exactly, so duplicated and reordered fragments are harmless; a partial
+  packet is dropped `drop_timeout_s` after its first fragment (XbeeMav's cleanup never fires).
+  A ping for a packet of which nothing arrived is answered with every index missing
+  (XbeeMav stays silent) so the sender resends.
+* Duplicates: a delivered packet is remembered (CRC-32 of each fragment) for
+  `drop_timeout_s`; its late retransmitted fragments are ignored and its pings acked as
+  complete again (XbeeMav can deliver such a packet twice). A fragment whose CRC differs is
+  a new packet reusing the id (msgid is 8 bits and ROSBuzz counts at 10 Hz: it wraps in
+  25.6 s), which then starts afresh.
+* Acks name the acker, not the packet's sender, so two robots sending large packets with the
+  same packet id at once would each take the other's acks — as in XbeeMav.
+* Payloads must be whole 8-byte words (XbeeMav serializes u64 words; a trailing partial word
+  would be read past the end): `submit` refuses others, receivers count and drop them.
+
+Counters (in `stats`): standard_out, fragments_out, pings_out, acks_out, resent_fragments,
+standard_in, fragments_in, pings_in, acks_in, delivered, bad_packets (wrong size or tiling),
+bad_fragments, bad_pings, bad_acks, unknown_packets (unknown first byte), empty_packets,
+duplicate_fragments, conflicting_fragments, late_fragments (of a delivered packet), reacks,
+partials_evicted, partials_expired, transfers_done, transfers_timeout, transfers_unacked,
+dropped_standard, dropped_large, dropped_acks.
+"""
+
+from __future__ import annotations
+
+import select
+import time
+import zlib
+from collections import Counter, OrderedDict, deque
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from itertools import islice
+from typing import Any
+from urllib.parse import parse_qsl, urlencode, urlsplit
+
+import serial
+
+from .base import IdTable, check_policy, check_robot_id
+from .xbee import (
+    API_MODES,
+    XBEEMAV_DEST16,
+    FrameReader,
+    ModemStatus,
+    ReceivePacket,
+    TransmitStatus,
+    transmit_request,
+)
+
+FRAGMENT_DATA = 250
+"""Packet bytes per fragment."""
+FRAGMENT_HEADER = 6
+"""'F', packet id, sender address, fragment index, offset (u16 BE)."""
+STANDARD_LIMIT = 250
+"""Packets (sysid + msgid + words) shorter than this travel as one 'S' packet."""
+MAX_FRAGMENTS = 255
+"""The ping's fragment count is a u8."""
+MAX_PACKET = MAX_FRAGMENTS * FRAGMENT_DATA
+"""The largest packet (sysid + msgid + words): 63,750 bytes."""
+MAX_DATA = (MAX_PACKET - 2) // 8 * 8
+"""The largest payload (whole words) `submit` takes: 63,744 bytes."""
+MAX_RF_DATA = FRAGMENT_HEADER + FRAGMENT_DATA
+"""The largest RF data the protocol produces: a full fragment, 256 bytes."""
+MAX_ACK_MISSING = MAX_RF_DATA - 3
+"""Missing indices one ack lists at most (the rest are asked for in the next round)."""
+DEFAULT_BAUD = 230400
+"""XbeeMav's and the profiles' baud rate (spec wire §9.1)."""
+
+STANDARD, FRAGMENT, PING, ACK = b"S"[0], b"F"[0], b"P"[0], b"A"[0]
+
+
+def sender_byte(rf: bytes) -> int | None:
+    """The sender id an XbeeMav packet names itself (sysid of 'S', address of F/P/A), or None."""
+    if len(rf) >= 3 and rf[0] in (FRAGMENT, PING, ACK, STANDARD):
+        return rf[1] if rf[0] == STANDARD else rf[2]
+    return None
+
+
+def msgid_of(data: bytes) -> int | None:
+    """ROSBuzz's msgid for air bytes: the low 8 bits of a BUZZ_MESSAGE's message number."""
+    if len(data) >= 8 and data[6] == 0 and data[7] == 2:  # word 0, big-endian: lane 0 = type 2
+        return data[5]
+    return None
+
+
+@dataclass
+class _Transfer:
+    """One large packet being sent."""
+
+    packet_id: int
+    fragments: list[bytes]
+    ping: bytes
+    started: float
+    deadline: float
+    todo: deque[int]
+    ping_due: bool = True
+    pinged: bool = False
+    waiting_until: float | None = None
+    rounds: int = 0
+    acked: set[int] = field(default_factory=set)
+    missing: set[int] = field(default_factory=set)
+
+
+@dataclass
+class _Partial:
+    """One large packet being received."""
+
+    first: float
+    frags: dict[int, tuple[int, bytes]] = field(default_factory=dict)
+    size: int = 0
+
+
+@dataclass
+class _Delivered:
+    """A packet recently delivered: when, and each fragment's CRC-32."""
+
+    at: float
+    crcs: tuple[int, ...]
+
+
+class XbeeMav:
+    """The XbeeMav packet protocol for one node: no I/O, an injected clock, bounded memory.
+
+    `submit` queues a payload, `receive` takes the RF data of one received frame and returns
+    the payload it completes (if any), `pump` returns the RF data of the frames due now.
+    """
+
+    def __init__(
+        self,
+        address: int,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        stats: Counter[str] | None = None,
+        interframe_s: float = 0.1,
+        burst: int = 2,
+        adapt_s: float = 0.005,
+        round_wait_s: float = 0.5,
+        drop_timeout_s: float = 30.0,
+        node_ttl_s: float = 60.0,
+        max_partials_per_sender: int = 2,
+        max_partials: int = 64,
+        max_partial_bytes: int = 1 << 20,
+        max_delivered: int = 256,
+        max_standard_queue: int = 10,
+        max_large_queue: int = 4,
+        max_ack_queue: int = 32,
+    ) -> None:
+        self.address = check_robot_id(address)
+        self.clock = clock
+        self.stats: Counter[str] = Counter() if stats is None else stats
+        if interframe_s < 0 or burst < 1:
+            raise ValueError("interframe_s must be >= 0 and burst >= 1")
+        self.base_interframe_s = float(interframe_s)
+        self.interframe_s = float(interframe_s)
+        self.burst = burst
+        self.adapt_s = adapt_s
+        self.round_wait_s = round_wait_s
+        self.drop_timeout_s = drop_timeout_s
+        self.node_ttl_s = node_ttl_s
+        self.max_partials_per_sender = max(1, max_partials_per_sender)
+        self.max_partials = max(1, max_partials)
+        self.max_partial_bytes = max(MAX_PACKET, max_partial_bytes)
+        self.max_delivered = max_delivered
+        self._standard: deque[bytes] = deque(maxlen=max(1, max_standard_queue))
+        self._large: deque[tuple[bytes, int]] = deque(maxlen=max(1, max_large_queue))
+        self._acks: deque[bytes] = deque(maxlen=max(1, max_ack_queue))
+        self._transfer: _Transfer | None = None
+        self._transfer_turn = False
+        self._tokens = float(burst)
+        self._last_refill = clock()
+        self._nodes: dict[int, float] = {}
+        self._partials: OrderedDict[tuple[int, int], _Partial] = OrderedDict()
+        self._partial_bytes = 0
+        self._per_sender: Counter[int] = Counter()
+        self._delivered: OrderedDict[tuple[int, int], _Delivered] = OrderedDict()
+
+    # ------------------------------------------------------------------ state
+
+    @property
+    def partial_bytes(self) -> int:
+        """Bytes held in packets being reassembled."""
+        return self._partial_bytes
+
+    @property
+    def partials(self) -> int:
+        """Packets being reassembled."""
+        return len(self._partials)
+
+    @property
+    def queued(self) -> int:
+        """Frames and packets waiting to be sent (a transfer in flight counts as one)."""
+        return (
+            len(self._standard) + len(self._large) + len(self._acks) + (self._transfer is not None)
+        )
+
+    @property
+    def transferring(self) -> bool:
+        """Whether a large packet is being sent."""
+        return self._transfer is not None
+
+    def known_nodes(self) -> set[int]:
+        """The other robots heard within `node_ttl_s`: those whose acks a transfer waits for."""
+        now = self.clock()
+        return {n for n, t in self._nodes.items() if now - t <= self.node_ttl_s}
+
+    # ------------------------------------------------------------------ sending
+
+    def submit(self, data: bytes, msgid: int, sysid: int | None = None) -> None:
+        """Queue one payload (whole big-endian words) for broadcast; ValueError if it cannot go.
+
+        `sysid` defaults to this node's address, as ROSBuzz sets sysid = robot id.
+        """
+        data = bytes(data)
+        if not data or len(data) % 8:
+            raise ValueError(f"payload of {len(data)} bytes: must be whole 8-byte words")
+        if len(data) > MAX_DATA:
+            raise ValueError(f"payload of {len(data)} bytes, more than MAX_DATA={MAX_DATA}")
+        packet = bytes((self.address if sysid is None else sysid & 0xFF, msgid & 0xFF)) + data
+        if len(packet) < STANDARD_LIMIT:
+            if len(self._standard) == self._standard.maxlen:
+                self.stats["dropped_standard"] += 1
+            self._standard.append(b"S" + packet)
+        else:
+            if len(self._large) == self._large.maxlen:
+                self.stats["dropped_large"] += 1
+            self._large.append((packet, msgid & 0xFF))
+
+    def pump(self) -> list[bytes]:
+        """The RF data of the frames due now, as pacing allows (call every tick)."""
+        now = self.clock()
+        self._expire(now)
+        self._advance(now)
+        if self.interframe_s > 0:
+            self._tokens = min(
+                float(self.burst), self._tokens + (now - self._last_refill) / self.interframe_s
+            )
+        else:
+            self._tokens = float(self.burst)
+        self._last_refill = now
+        out: list[bytes] = []
+        # (a hair under 1: fake clocks step in floats that do not add up exactly)
+        while self._tokens >= 1 - 1e-9 or self.interframe_s <= 0:
+            rf = self._next_frame(now)
+            if rf is None:
+                break
+            out.append(rf)
+            if self.interframe_s > 0:
+                self._tokens -= 1
+            self._advance(now)
+        return out
+
+    def _next_frame(self, now: float) -> bytes | None:
+        if self._acks:
+            self.stats["acks_out"] += 1
+            return self._acks.popleft()
+        t = self._transfer
+        ready = t is not None and t.waiting_until is None and (bool(t.todo) or t.ping_due)
+        if self._standard and not (ready and self._transfer_turn):
+            self._transfer_turn = True
+            self.stats["standard_out"] += 1
+            return self._standard.popleft()
+        if not ready or t is None:
+            return None
+        self._transfer_turn = False
+        if t.todo:
+            self.stats["fragments_out"] += 1
+            return t.fragments[t.todo.popleft()]
+        t.ping_due = False
+        t.pinged = True
+        t.waiting_until = now + self.round_wait_s
+        self.stats["pings_out"] += 1
+        return t.ping
+
+    def _advance(self, now: float) -> None:
+        """Start the next large packet, or move the current one to its next round or its end."""
+        t = self._transfer
+        if t is None:
+            if not self._large:
+                return
+            packet, pid = self._large.popleft()
+            chunks = [packet[o : o + FRAGMENT_DATA] for o in range(0, len(packet), FRAGMENT_DATA)]
+            fragments = [
+                bytes((FRAGMENT, pid, self.address, i)) + (i * FRAGMENT_DATA).to_bytes(2, "big") + c
+                for i, c in enumerate(chunks)
+            ]
+            ping = bytes((PING, pid, self.address, len(chunks)))
+            self._transfer = _Transfer(
+                pid, fragments, ping, now, now + self.drop_timeout_s, deque(range(len(chunks)))
+            )
+            return
+        known = self.known_nodes()
+        if t.pinged and known and known <= t.acked:
+            self._finish("transfers_done", t.rounds + 1)
+        elif t.waiting_until is not None and now >= t.waiting_until:
+            t.rounds += 1
+            if not known:
+                self._finish("transfers_unacked", 0)
+            elif now >= t.deadline:
+                self._finish("transfers_timeout", 0)
+            else:
+                t.todo = deque(sorted(t.missing))
+                self.stats["resent_fragments"] += len(t.todo)
+                t.missing.clear()
+                t.ping_due = True
+                t.waiting_until = None
+        elif now >= t.deadline + self.round_wait_s:
+            # Still sending long after the deadline (a huge packet behind a slow queue).
+            self._finish("transfers_timeout", 0)
+
+    def _finish(self, outcome: str, rounds: int) -> None:
+        self.stats[outcome] += 1
+        self._transfer = None
+        if rounds and self.base_interframe_s > 0:
+            # XbeeMav: faster after a one-round transfer, slower after one that needed more.
+            step = -self.adapt_s if rounds == 1 else self.adapt_s
+            lo, hi = self.base_interframe_s / 2, self.base_interframe_s * 2
+            self.interframe_s = min(hi, max(lo, self.interframe_s + step))
+        self._advance(self.clock())
+
+    # ------------------------------------------------------------------ receiving
+
+    def receive(self, sender: int, rf: bytes) -> bytes | None:
+        """Handle the RF data of one frame from robot `sender`; the payload it completes, if any.
+
+        Never raises: whatever `rf` holds only moves counters (and may queue an ack).
+        """
+        if not rf:
+            self.stats["empty_packets"] += 1
+            return None
+        now = self.clock()
+        kind = rf[0]
+        if kind not in (STANDARD, FRAGMENT, PING, ACK):
+            self.stats["unknown_packets"] += 1
+            return None
+        if sender != self.address:
+            if sender not in self._nodes and len(self._nodes) >= 4096:
+                self._forget_nodes(now)
+            self._nodes[sender] = now
+        if kind == STANDARD:
+            self.stats["standard_in"] += 1
+            data = rf[3:]
+            if len(rf) < 3 or not data or len(data) % 8:
+                self.stats["bad_packets"] += 1
+                return None
+            self.stats["delivered"] += 1
+            return bytes(data)
+        self._expire(now)
+        if kind == FRAGMENT:
+            self._fragment(sender, rf, now)
+            return None
+        if kind == PING:
+            return self._ping(sender, rf, now)
+        self._ack(sender, rf)
+        return None
+
+    def _forget_nodes(self, now: float) -> None:
+        for n in [n for n, t in self._nodes.items() if now - t > self.node_ttl_s]:
+            del self._nodes[n]
+        while len(self._nodes) >= 4096:
+            del self._nodes[next(iter(self._nodes))]
+
+    def _fragment(self, sender: int, rf: bytes, now: float) -> None:
+        self.stats["fragments_in"] += 1
+        if len(rf) <= FRAGMENT_HEADER or len(rf) > MAX_RF_DATA:
+            self.stats["bad_fragments"] += 1
+            return
+        pid, index = rf[1], rf[3]
+        offset = rf[4] << 8 | rf[5]
+        chunk = bytes(rf[FRAGMENT_HEADER:])
+        if index >= MAX_FRAGMENTS or offset + len(chunk) > MAX_PACKET:
+            self.stats["bad_fragments"] += 1
+            return
+        key = (sender, pid)
+        done = self._delivered.get(key)
+        if done is not None:
+            if index < len(done.crcs) and zlib.crc32(chunk) == done.crcs[index]:
+                self.stats["late_fragments"] += 1
+                return
+            del self._delivered[key]  # a new packet reusing the id
+        partial = self._partials.get(key)
+        if partial is None:
+            partial = self._new_partial(key, now)
+        else:
+            self._partials.move_to_end(key)
+        old = partial.frags.get(index)
+        if old is not None:
+            if old == (offset, chunk):
+                self.stats["duplicate_fragments"] += 1
+                return
+            self.stats["conflicting_fragments"] += 1
+            partial.size -= len(old[1])
+            self._partial_bytes -= len(old[1])
+        partial.frags[index] = (offset, chunk)
+        partial.size += len(chunk)
+        self._partial_bytes += len(chunk)
+        while self._partial_bytes > self.max_partial_bytes:
+            # Never the current one: it alone fits (255 fragments of <= 250 bytes <= the cap).
+            victim = next((k for k in self._partials if k != key), None)
+            if victim is None:
+                break
+            self._drop_partial(victim, "partials_evicted")
+
+    def _new_partial(self, key: tuple[int, int], now: float) -> _Partial:
+        sender = key[0]
+        if self._per_sender[sender] >= self.max_partials_per_sender:
+            victim = next(k for k in self._partials if k[0] == sender)
+            self._drop_partial(victim, "partials_evicted")
+        if len(self._partials) >= self.max_partials:
+            self._drop_partial(next(iter(self._partials)), "partials_evicted")
+        partial = _Partial(now)
+        self._partials[key] = partial
+        self._per_sender[sender] += 1
+        return partial
+
+    def _drop_partial(self, key: tuple[int, int], why: str | None) -> _Partial:
+        partial = self._partials.pop(key)
+        self._partial_bytes -= partial.size
+        self._per_sender[key[0]] -= 1
+        if not self._per_sender[key[0]]:
+            del self._per_sender[key[0]]
+        if why:
+            self.stats[why] += 1
+        return partial
+
+    def _ping(self, sender: int, rf: bytes, now: float) -> bytes | None:
+        self.stats["pings_in"] += 1
+        if len(rf) != 4 or not 0 < rf[3] <= MAX_FRAGMENTS:
+            self.stats["bad_pings"] += 1
+            return None
+        pid, count = rf[1], rf[3]
+        key = (sender, pid)
+        done = self._delivered.get(key)
+        partial = self._partials.get(key)
+        if partial is None:
+            if done is not None and len(done.crcs) == count:
+                self.stats["reacks"] += 1
+                self._queue_ack(pid, ())
+            else:
+                self._queue_ack(pid, range(count))
+            return None
+        frags = partial.frags
+        missing = [i for i in range(count) if i not in frags]
+        if missing:
+            self._queue_ack(pid, missing)
+            return None
+        self._drop_partial(key, None)
+        packet = self._assemble(frags, count)
+        if packet is None:
+            self.stats["bad_packets"] += 1
+            self._queue_ack(pid, range(count))
+            return None
+        crcs = tuple(zlib.crc32(frags[i][1]) for i in range(count))
+        self._delivered[key] = _Delivered(now, crcs)
+        self._delivered.move_to_end(key)
+        while len(self._delivered) > self.max_delivered:
+            self._delivered.popitem(last=False)
+        self._queue_ack(pid, ())
+        self.stats["delivered"] += 1
+        return packet[2:]
+
+    @staticmethod
+    def _assemble(frags: dict[int, tuple[int, bytes]], count: int) -> bytes | None:
+        """The packet if fragments 0..count-1 tile it exactly and it holds whole words."""
+        if len(frags) != count:
+            return None  # fragments beyond the ping's count: not the packet the ping announces
+        parts = []
+        at = 0
+        for i in range(count):
+            offset, chunk = frags[i]
+            if offset != at:
+                return None
+            parts.append(chunk)
+            at += len(chunk)
+        packet = b"".join(parts)
+        if len(packet) < 10 or (len(packet) - 2) % 8:
+            return None
+        return packet
+
+    def _queue_ack(self, pid: int, missing: Iterable[int]) -> None:
+        listed = bytes(islice(missing, MAX_ACK_MISSING))
+        if len(self._acks) == self._acks.maxlen:
+            self.stats["dropped_acks"] += 1
+        self._acks.append(bytes((ACK, pid, self.address)) + listed)
+
+    def _ack(self, sender: int, rf: bytes) -> None:
+        self.stats["acks_in"] += 1
+        if len(rf) < 3:
+            self.stats["bad_acks"] += 1
+            return
+        t = self._transfer
+        if t is None or rf[1] != t.packet_id or not t.pinged:
+            return
+        n = len(t.fragments)
+        missing = {i for i in rf[3:] if i < n}
+        if len(rf) == 3:
+            t.acked.add(sender)
+        elif missing:
+            t.missing |= missing
+        else:
+            self.stats["bad_acks"] += 1
+
+    def _expire(self, now: float) -> None:
+        limit = now - self.drop_timeout_s
+        stale = [k for k, p in self._partials.items() if p.first < limit]
+        for k in stale:
+            self._drop_partial(k, "partials_expired")
+        while self._delivered:
+            k, d = next(iter(self._delivered.items()))
+            if d.at >= limit:
+                break
+            del self._delivered[k]
+
+
+# ---------------------------------------------------------------------- the radio
+
+_OUR_PARAMS = ("baud", "api", "unknown")
+
+
+class XBeeRadio:
+    """A `RadioLink` over an XBee in API mode on a serial port, speaking XbeeMav's packets.
+
+    `port` is a device path (opened at `baud`, non-blocking) or an open pyserial port (e.g.
+    `serial.serial_for_url("loop://")`). `robot_id` (0..255) is this node's sysid and
+    address; `id_map` maps XBee serials (16 hex digits) to robot ids; `unknown` says what to
+    do with frames from other serials (see `fieldkit.radio.base`). `send` derives msgid from
+    a BUZZ_MESSAGE's message number as ROSBuzz does (so `send(encode(bundle))` writes the
+    spec §11 frame), otherwise from a counter of its own. Engine options (`interframe_s`,
+    `round_wait_s`, ...) go to `XbeeMav`.
+
+    `stats` counts, besides the `FrameReader` and `XbeeMav` counters: bytes_in, bytes_out,
+    frames_out, tx_status, tx_failed (status frames reporting a delivery failure),
+    modem_status, ignored_frames (other frame types), unknown_senders, dropped_unknown,
+    io_errors, reopens, tx_overflow (frames dropped because the port would not drain).
+    """
+
+    def __init__(
+        self,
+        port: serial.SerialBase | str,
+        robot_id: int,
+        *,
+        baud: int = DEFAULT_BAUD,
+        api_mode: int = 1,
+        id_map: IdTable | Mapping[str, int] | Mapping[int, int] | None = None,
+        unknown: str = "drop",
+        clock: Callable[[], float] = time.monotonic,
+        frame_id: int = 1,
+        dest16: int = XBEEMAV_DEST16,
+        idle_flush_s: float = 0.1,
+        max_tx_buffer: int = 1 << 16,
+        **engine_options: Any,
+    ) -> None:
+        if api_mode not in API_MODES:
+            raise ValueError(f"API mode must be 1 or 2, got {api_mode!r}")
+        self.robot_id = check_robot_id(robot_id)
+        self.api_mode = api_mode
+        self.ids = id_map if isinstance(id_map, IdTable) else IdTable(id_map)
+        self.unknown = check_policy(unknown)
+        self.clock = clock
+        self.frame_id = frame_id
+        self.dest16 = dest16
+        self.idle_flush_s = idle_flush_s
+        self.max_tx_buffer = max_tx_buffer
+        self.stats: Counter[str] = Counter()
+        self.reader = FrameReader(api_mode, stats=self.stats)
+        self.engine = XbeeMav(robot_id, clock=clock, stats=self.stats, **engine_options)
+        self._path = port if isinstance(port, str) else None
+        self._baud = baud
+        self._port: serial.SerialBase | None = None
+        self._reopen_at = 0.0
+        self._tx = bytearray()
+        self._last_rx = clock()
+        self._msgid = 0
+        self._closed = False
+        if isinstance(port, str):
+            self._port = self._open(port, baud)
+        else:
+            self._port = port
+
+    @staticmethod
+    def _open(path: str, baud: int) -> serial.SerialBase:
+        return serial.Serial(path, baud, timeout=0, write_timeout=0)
+
+    @classmethod
+    def from_url(cls, url: str, robot_id: int, **kwargs: Any) -> XBeeRadio:
+        """An XBeeRadio from `serial:///dev/ttyUSB0?baud=230400&api=1`, a device path, or a
+        pyserial URL (`loop://`, `socket://host:port`, `spy://...`, with the same query keys;
+        opened with blocking writes, for tests and bridges).
+
+        Query keys: baud, api (1 or 2), unknown (drop or sysid); they override `kwargs`.
+        """
+        parts = urlsplit(url)
+        if not parts.scheme or len(parts.scheme) == 1:  # "/dev/ttyUSB0", "COM3", "C:\\..."
+            return cls(url, robot_id, **kwargs)
+        query = parse_qsl(parts.query, keep_blank_values=True)
+        ours = {k: v for k, v in query if k in _OUR_PARAMS}
+        theirs = [(k, v) for k, v in query if k not in _OUR_PARAMS]
+        try:
+            if "baud" in ours:
+                kwargs["baud"] = int(ours["baud"])
+            if "api" in ours:
+                kwargs["api_mode"] = int(ours["api"])
+        except ValueError:
+            raise ValueError(f"bad baud or api in {url!r}") from None
+        if "unknown" in ours:
+            kwargs["unknown"] = ours["unknown"]
+        if parts.scheme == "serial":
+            if theirs:
+                raise ValueError(f"unknown query keys {[k for k, _ in theirs]} in {url!r}")
+            path = parts.netloc + parts.path
+            if not path:
+                raise ValueError(f"no device in {url!r}")
+            return cls(path, robot_id, **kwargs)
+        # Any other scheme is one of pyserial's URL handlers, given its own query keys. Their
+        # writes block (loop:// refuses every write with write_timeout=0): tests and bridges.
+        inner = f"{parts.scheme}://{parts.netloc}{parts.path}"
+        if theirs:
+            inner += "?" + urlencode(theirs)
+        port = serial.serial_for_url(inner, kwargs.get("baud", DEFAULT_BAUD), timeout=0)
+        return cls(port, robot_id, **kwargs)
+
+    # ------------------------------------------------------------------ RadioLink
+
+    def send(self, data: bytes) -> None:
+        """Queue one bundle's air bytes (whole 8-byte words) for broadcast; writes if due."""
+        if self._closed:
+            raise ValueError("radio is closed")
+        msgid = msgid_of(data)
+        if msgid is None:
+            self._msgid = (self._msgid + 1) & 0xFF
+            msgid = self._msgid
+        self.engine.submit(data, msgid)
+        self._pump()
+
+    def poll(self) -> list[tuple[int, bytes]]:
+        """(sender id, payload) received since the last poll; also writes the frames now due."""
+        if self._closed:
+            return []
+        now = self.clock()
+        frames = []
+        data = self._read(now)
+        if data:
+            self.stats["bytes_in"] += len(data)
+            self._last_rx = now
+            frames = self.reader.feed(data)
+        elif self.reader.pending and now - self._last_rx >= self.idle_flush_s:
+            frames = self.reader.flush()
+        out = []
+        for frame in frames:
+            if isinstance(frame, ReceivePacket):
+                got = self._received(frame)
+                if got is not None:
+                    out.append(got)
+            elif isinstance(frame, TransmitStatus):
+                self.stats["tx_status"] += 1
+                if frame.delivery_status:
+                    self.stats["tx_failed"] += 1
+            elif isinstance(frame, ModemStatus):
+                self.stats["modem_status"] += 1
+            else:
+                self.stats["ignored_frames"] += 1
+        self._pump()
+        return out
+
+    def fileno(self) -> int | None:
+        """The port's file descriptor, for a select() loop (None for ports without one)."""
+        try:
+            return None if self._port is None else self._port.fileno()
+        except (AttributeError, NotImplementedError, OSError, serial.SerialException):
+            return None
+
+    def close(self) -> None:
+        """Close the port (if this radio opened it or was given it)."""
+        self._closed = True
+        if self._port is not None:
+            try:
+                self._port.close()
+            except (OSError, serial.SerialException):
+                pass
+            self._port = None
+
+    def __enter__(self) -> XBeeRadio:
+        """The radio itself."""
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        """Close the radio."""
+        self.close()
+
+    # ------------------------------------------------------------------ internals
+
+    def _received(self, frame: ReceivePacket) -> tuple[int, bytes] | None:
+        sender = self.ids.lookup(frame.source64)
+        if sender is None:
+            self.stats["unknown_senders"] += 1
+            if self.unknown == "drop":
+                self.stats["dropped_unknown"] += 1
+                return None
+            sender = sender_byte(frame.rf_data)
+            if sender is None:
+                self.stats["dropped_unknown"] += 1  # not an XbeeMav packet: no id to take
+                return None
+        data = self.engine.receive(sender, frame.rf_data)
+        return None if data is None else (sender, data)
+
+    def _pump(self) -> None:
+        for rf in self.engine.pump():
+            frame = transmit_request(
+                rf, frame_id=self.frame_id, dest16=self.dest16, api_mode=self.api_mode
+            )
+            if len(self._tx) + len(frame) > self.max_tx_buffer:
+                self.stats["tx_overflow"] += 1
+                continue
+            self._tx += frame
+            self.stats["frames_out"] += 1
+        self._write()
+
+    def _port_ready(self, now: float) -> serial.SerialBase | None:
+        if self._port is None and self._path is not None and now >= self._reopen_at:
+            self._reopen_at = now + 1.0
+            try:
+                self._port = self._open(self._path, self._baud)
+                self.reader.reset()
+                self.stats["reopens"] += 1
+            except (OSError, serial.SerialException):
+                self.stats["io_errors"] += 1
+        return self._port
+
+    def _io_failed(self, now: float) -> None:
+        self.stats["io_errors"] += 1
+        if self._path is None:
+            return  # not ours to reopen: keep counting
+        try:
+            if self._port is not None:
+                self._port.close()
+        except (OSError, serial.SerialException):
+            pass
+        self._port = None
+        self._reopen_at = now + 1.0
+
+    def _read(self, now: float) -> bytes:
+        port = self._port_ready(now)
+        if port is None:
+            return b""
+        chunks = []
+        try:
+            for _ in range(16):  # at most 64 KiB per poll: stay non-blocking under a flood
+                chunk = port.read(4096)
+                if not chunk:
+                    break
+                chunks.append(chunk)
+                if len(chunk) < 4096:
+                    break
+        except (OSError, serial.SerialException):
+            self._io_failed(now)
+        return b"".join(chunks)
+
+    def _write(self) -> None:
+        port = self._port
+        if port is None or not self._tx:
+            return
+        try:
+            fd = port.fileno() if hasattr(port, "fileno") else None
+        except (OSError, serial.SerialException, AttributeError, NotImplementedError):
+            fd = None
+        try:
+            while self._tx:
+                # pyserial's non-blocking write spins on EAGAIN: write only when there is room.
+                if fd is not None and not select.select([], [fd], [], 0)[1]:
+                    break
+                n = port.write(bytes(self._tx[:4096]))
+                if not n:
+                    break
+                del self._tx[:n]
+                self.stats["bytes_out"] += n
+        except (OSError, serial.SerialException):
+            self._io_failed(self.clock())
