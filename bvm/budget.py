@@ -26,10 +26,31 @@ from bvm.errors import BuzzBudgetExceeded
 CHUNK = 1000
 _RETRY = 0.05  # seconds between deliveries of a timeout that has not ended the entry
 
-# PyThreadState_SetAsyncExc(thread, exc) raises exc in that thread; NULL withdraws it.
+# PyThreadState_SetAsyncExc(thread, exc) raises exc in that thread.
 _API = ("PyThreadState_SetAsyncExc", ctypes.pythonapi)
 _raise_in = ctypes.PYFUNCTYPE(ctypes.c_int, ctypes.c_ulong, ctypes.py_object)(_API)
-_withdraw_in = ctypes.PYFUNCTYPE(ctypes.c_int, ctypes.c_ulong, ctypes.c_void_p)(_API)
+
+
+class _Flush(BaseException):
+    """Replaces an undelivered timeout, to be taken at once (see `_flush_async_exception`)."""
+
+
+def _flush_async_exception(thread: int) -> None:
+    """Make sure no asynchronous exception is pending for this thread, and none signalled.
+
+    Withdrawing with PyThreadState_SetAsyncExc(thread, NULL) looks simpler, but when the
+    timeout was already delivered it leaves CPython's "async exception pending" signal set
+    for good (3.11 clears it only on delivering one): every later bytecode check then takes
+    the slow path, and with sys.settrace active (debuggers, coverage) the interpreter spins
+    forever. So replace whatever is pending by a marker and take it here, on the first
+    backward jump, where the loop below waits for it.
+    """
+    try:
+        _raise_in(thread, _Flush)  # may be taken as the call returns: hence inside the try
+        while True:
+            pass
+    except _Flush:
+        pass
 
 
 class BudgetTimeout(BuzzBudgetExceeded):
@@ -93,11 +114,12 @@ class Budget:
         with self._lock:
             self._generation += 1
             self._active = False
-            if self._timed_out:
-                _withdraw_in(self._thread, None)
+            timed_out = self._timed_out
         timer, self._timer = self._timer, None
         if timer is not None:
             timer.cancel()
+        if timed_out and self._thread == threading.get_ident():
+            _flush_async_exception(self._thread)
 
     def _arm(self, seconds: float, generation: int) -> None:
         timer = threading.Timer(seconds, self._expire, (generation,))

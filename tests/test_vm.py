@@ -358,3 +358,29 @@ def test_nan_with_nan_is_nan(translate: bool) -> None:
     vm, _ = make_vm(src, translate)
     for v in vm.call("f").values():
         assert v != v
+
+
+def test_a_time_budget_leaves_the_interpreter_as_it_found_it() -> None:
+    # Withdrawing an already delivered timeout with PyThreadState_SetAsyncExc(NULL) left
+    # CPython's async-exception signal set for good: sys.settrace then spun forever. Run in
+    # a child process so a regression fails here instead of hanging the suite.
+    import subprocess
+    import sys as _sys
+
+    child = """
+import sys, bvm
+vm = bvm.VM(max_seconds=0.1)
+vm.load(bvm.compile_source("var i = 0\\nwhile (1) { i = i + 1 }\\n", "r.bzz"))
+try:
+    vm.execute()
+except bvm.BuzzBudgetExceeded:
+    pass
+events = []
+sys.settrace(lambda frame, event, arg: events.append(event))
+sum(range(3))
+(lambda: 1)()
+sys.settrace(None)
+print("traced", len(events))
+"""
+    out = subprocess.run([_sys.executable, "-c", child], capture_output=True, text=True, timeout=60)
+    assert out.stdout.startswith("traced "), out.stderr
