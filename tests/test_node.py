@@ -136,3 +136,52 @@ def test_the_pilot_override_always_wins(rig: SimRig) -> None:
     assert rig.link.telemetry.mode == "LOITER"  # the node did not take it back
     after = (rig.sim.vehicle.x, rig.sim.vehicle.y)
     assert after == pytest.approx(before, abs=0.5)
+
+
+def test_two_nodes_hear_each_other_over_the_udp_radio() -> None:
+    from fieldkit.radio.udp import UdpRadio
+
+    src = """
+    function step() {
+      neighbors.broadcast("hi", id)
+      seen = neighbors.count()
+    }
+    neighbors.listen("hi", function(topic, value, sender) { heard = value })
+    """
+    rigs = [SimRig("solo", home=HOME, gps_fix_delay_s=0.0) for _ in range(2)]
+    radios = []
+    try:
+        nodes = []
+        port = 24000 + os.getpid() % 2000
+        for rid, r in zip((1, 2), rigs, strict=True):
+            r.connect()
+            assert r.run_until(lambda r=r: r.link.telemetry.gps_fix_type >= 3, 10.0)
+            t = r.link.telemetry
+            home = (t.lat, t.lon, 0.0)
+            radio = UdpRadio(rid, port=port, group="127.255.255.255")
+            radios.append(radio)
+            nodes.append(
+                Node(
+                    r.profile,
+                    bvm.compile_source(src, "hi.bzz"),
+                    rid,
+                    MavlinkAutopilot(r.link, home),  # type: ignore[arg-type]
+                    radio,
+                    home=home,  # type: ignore[arg-type]
+                    clock=r.clock,
+                    out=lambda _t: None,
+                )
+            )
+        for _ in range(40):
+            for node, r in zip(nodes, rigs, strict=True):
+                node.tick()
+                r.tick()
+        for node, other in zip(nodes, (2, 1), strict=True):
+            assert node.vm["heard"] == other and node.vm["seen"] == 1
+            s = node.summary()
+            assert s["radio_frames_in"] > 20 and s["radio_frames_out"] == 40
+    finally:
+        for radio in radios:
+            radio.close()
+        for r in rigs:
+            r.close()

@@ -284,9 +284,10 @@ class Node:
             "late_ticks": self.late_ticks,
             "mavlink_messages": messages,
             "mavlink_bad_frames": bad,
-            "radio_frames_in": radio.get("frames_in", 0),
-            "radio_frames_out": radio.get("frames_out", 0),
-            "radio_bad_frames": radio.get("bad_frames", 0),
+            # XBee radios count frames, the UDP radio datagrams.
+            "radio_frames_in": radio.get("frames_in", 0) + radio.get("datagrams_in", 0),
+            "radio_frames_out": radio.get("frames_out", 0) + radio.get("datagrams_out", 0),
+            "radio_bad_frames": radio.get("bad_frames", 0) + radio.get("bad_datagrams", 0),
             "bundle_errors": self.stats["bundle_errors"],
             "decode_errors": self.vm.net.stats["decode_errors"],
             "errors": list(self.errors),
