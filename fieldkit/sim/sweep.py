@@ -50,12 +50,13 @@ def cluster_client(
         finally:
             client.close()
         return
-    # The dashboard would need a free port and bokeh; a sweep reports through its progress bar.
+    # The scheduler's HTTP server starts even without a dashboard, on port 8787 unless told
+    # otherwise: a free port on the loopback lets sweeps (and tests) run side by side quietly.
     cluster = LocalCluster(
         n_workers=workers,
         threads_per_worker=1,
         processes=processes,
-        dashboard_address=None,
+        dashboard_address="127.0.0.1:0",
         silence_logs=logging.ERROR,
     )
     try:
