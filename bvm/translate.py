@@ -13,7 +13,12 @@ is turned into Python source once and compiled by CPython:
 * types are inferred flow-sensitively (constants, int/float arithmetic, locals, and the
   argument types seen on the first call, guarded at entry), so known ints and floats run
   as bare Python operations plus the int32 wrap or the binary32 rounding; unknown
-  operands take an inline int/int path and call bvm/ops.py for everything else.
+  operands take an inline int/int path and call bvm/ops.py for everything else;
+* a call of the running closure (`callee is _C`, tested at run time) enters its
+  unguarded body directly, and when the body provably returns ints (or floats) given
+  that its own direct calls do, their results are typed so; a body that returns
+  anything else hands it back by `_Deopt` to code that assumes nothing (self_call);
+* loop iterations are counted for the budget by a `for` over one chunk's counts.
 
 Anything that does not fit (hand-made or hostile bytecode, inconsistent stack depths,
 an instruction certain to fail) raises `NotStructured`, and that function runs on the
@@ -36,6 +41,7 @@ from types import CodeType
 from typing import TYPE_CHECKING, Any
 
 from bvm import ops
+from bvm.budget import CHUNK
 from bvm.errors import BuzzError
 from bvm.interp import MAX_LOCALS, Halt
 from bvm.opcodes import Op
@@ -43,7 +49,7 @@ from bvm.program import Instruction
 from bvm.values import F32_CELL, Closure, Table, f32, i32, type_name
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Iterator
 
     from bvm.vm import VM
 
@@ -55,6 +61,11 @@ _MAX_INSTRUCTIONS = 100_000
 _MAX_NESTING = 80  # CPython's tokenizer allows 100 indentation levels
 _MAX_LOOPS = 18  # and 20 statically nested loops
 _MAX_PASSES = 8  # loop re-emissions while inferring types
+_MAX_TAILS = 8  # self-calls per function whose continuation is emitted twice
+#: Direct self-calls (see `_Codegen.self_call`) and chunked loop counters (see
+#: `_Codegen.end_iteration`); tests turn them off to compare.
+SELF_CALLS = True
+CHUNKED_LOOPS = True
 _serial = itertools.count()
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
 
@@ -186,6 +197,39 @@ class _Loop:
         self.exits: tuple[list[str], list[Range]] | None = None  # locals at the breaks
 
 
+class _SelfCall:
+    """What a translation knows for calling itself directly: a call whose callee is, at run
+    time, the very closure running (`callee is _C`) with arguments of the speculated types
+    can enter the unguarded body `name` instead of going through the closure protocol."""
+
+    __slots__ = ("addr", "n_actrec", "spec", "name", "ret", "sites", "returns")
+
+    def __init__(
+        self, addr: int, n_actrec: int, spec: tuple[str, ...], name: str, ret: str = ANY
+    ) -> None:
+        self.addr = addr
+        self.n_actrec = n_actrec
+        self.spec = spec  # the parameter types the body assumes
+        self.name = name  # the module global holding the unguarded body
+        # The type the body is assumed to return (ANY: nothing assumed). Sound by
+        # induction when every return outside a deoptimized tail then has this type; the
+        # others check their value and raise `_Deopt` with it, caught at the call site.
+        self.ret = ret
+        self.sites = 0  # self-calls emitted
+        self.returns: list[str] = []  # static types of the returns outside deoptimized tails
+
+
+class _Deopt(Exception):  # noqa: N818 - not an error: a control transfer to the caller
+    """Raised by a body whose result is not its inferred type, to the direct self-call that
+    entered it; that call site then continues on code that assumes nothing of the result
+    (`args[0]`). No `__init__` of its own: raising it must not take a Python frame, which
+    at the recursion limit would turn a return into a stack overflow."""
+
+
+#: A line of `_Codegen.lines` only the unguarded body keeps (its `_Deopt` check).
+_DEOPT_ONLY = 1
+
+
 def discover(vm: VM, entry: int) -> list[Instruction]:
     """All instructions reachable from `entry`, in address order; NotStructured if any is bad."""
     program = vm.program
@@ -220,13 +264,33 @@ def discover(vm: VM, entry: int) -> list[Instruction]:
     return instrs
 
 
+def _loop_depth(instrs: list[Instruction]) -> int:
+    """An upper bound of the loop nesting: the most backward jumps spanning one point."""
+    events = []
+    for ins in instrs:
+        if ins.op is Op.JUMP and ins.arg <= ins.addr:  # type: ignore[operator]
+            events += [(ins.arg, 1), (ins.addr + 1, -1)]
+    depth = deepest = 0
+    for _, step in sorted(events):
+        depth += step
+        deepest = max(deepest, depth)
+    return deepest
+
+
 class _Codegen:
     """Emits the Python source of one function from its structured instruction list."""
 
     def __init__(
-        self, vm: VM, instrs: list[Instruction], slot_types: list[str], toplevel: bool
+        self,
+        vm: VM,
+        instrs: list[Instruction],
+        slot_types: list[str],
+        toplevel: bool,
+        selfcall: _SelfCall | None = None,
     ) -> None:
         self.vm = vm
+        self.selfcall = selfcall
+        self.tail_depth = 0  # > 0 inside the copy of a tail that assumes nothing of a result
         self.instrs = instrs
         self.index = {ins.addr: i for i, ins in enumerate(instrs)}
         self.headers = set()
@@ -239,7 +303,7 @@ class _Codegen:
         self.types = list(slot_types)  # the static type of each live local slot
         self.ranges: list[Range] = [None] * len(slot_types)  # intervals of INT locals
         self.stack: list[_Expr] = []
-        self.lines: list[tuple[int, str, int]] = []
+        self.lines: list[tuple[int, str, int, int]] = []  # indent, text, offset, flags
         self.emitted = 0
         self.max_emitted = 2000 + 40 * len(instrs)
         self.indent = 1
@@ -250,18 +314,23 @@ class _Codegen:
         self.counters: list[str] = []  # the loop-iteration counters of the enclosing loops
         self.used_locals: set[int] = set()
         self.global_names: set[str] = set()
+        # A chunked loop is two Python blocks (`while` and `for`), and CPython allows 20
+        # nested blocks: the outermost loops are chunked, as many as the deepest nest allows.
+        depth = _loop_depth(instrs)
+        self.chunked_depth = max(0, min(depth, _MAX_LOOPS - 1 - depth)) if CHUNKED_LOOPS else 0
 
     # ------------------------------------------------------------ helpers
 
-    def emit(self, text: str, offset: int) -> None:
-        if self.indent > _MAX_NESTING:
+    def emit(self, text: str, offset: int, flags: int = 0, indent: int | None = None) -> None:
+        indent = self.indent if indent is None else indent
+        if indent > _MAX_NESTING:
             raise NotStructured("nesting too deep")
         self.emitted += 1
         if self.emitted > self.max_emitted:
             # Loop re-emission while types settle can multiply with nesting: give up and
             # interpret rather than spend unbounded time translating.
             raise NotStructured("translation work exceeded its bound")
-        self.lines.append((self.indent, text, offset))
+        self.lines.append((indent, text, offset, flags))
 
     def temp(self) -> str:
         self.ntemps += 1
@@ -343,6 +412,7 @@ class _Codegen:
             self.emit(f"_charge({spent})", offset)
 
     def snapshot(self) -> tuple:
+        sc = self.selfcall
         return (
             len(self.lines),
             list(self.types),
@@ -350,13 +420,19 @@ class _Codegen:
             self.dead,
             self.indent,
             self.loops,
+            (sc.sites, len(sc.returns)) if sc is not None else None,
         )
 
     def restore(self, snap: tuple) -> None:
-        n, types, ranges, self.dead, self.indent, self.loops = snap
+        n, types, ranges, self.dead, self.indent, self.loops, calls = snap
         del self.lines[n:]
         self.types = list(types)
         self.ranges = list(ranges)
+        if calls is not None:  # what the discarded code counted is gone with it
+            sc = self.selfcall
+            assert sc is not None
+            sc.sites = calls[0]
+            del sc.returns[calls[1] :]
 
     # ------------------------------------------------------------ structure
 
@@ -375,7 +451,10 @@ class _Codegen:
                 continue
             if op is Op.JUMP:
                 raise NotStructured("unstructured jump")
-            self.simple(ins)
+            if (op is Op.CALLC or op is Op.CALLS) and not self.dead:
+                self.call(ins, (i, j, loop, leaves))
+            else:
+                self.simple(ins)
             i += 1
         if len(self.stack) != leaves and not self.dead:
             raise NotStructured("values left on the stack at a block boundary")
@@ -399,22 +478,23 @@ class _Codegen:
             raise NotStructured("loops nested too deeply")
         shape = self.for_shape(i, j, header)
         counter = f"_n{self.loops}"
-        self.emit(f"{counter} = _K", header)
+        chunked = self.loops <= self.chunked_depth
+        if not chunked:
+            self.emit(f"{counter} = _K", header)
         self.counters.append(counter)
         snap = self.snapshot()
         for _ in range(_MAX_PASSES):
             entry = (list(self.types), list(self.ranges))
             if shape is not None:
-                after, loop, end = self.for_loop(i, shape)
+                after, loop, end = self.for_loop(i, shape, chunked)
             else:
                 k = backs[-1]
                 exit_addr = instrs[k + 1].addr if k + 1 < len(instrs) else None
                 loop = _Loop(exit_addr, i)
-                self.emit("while True:", header)
-                self.indent += 1
+                self.open_loop(header, 1, chunked)
                 self.region(i, k, loop)
                 end = None if self.dead else (list(self.types), list(self.ranges))
-                self.end_iteration(len(entry[0]), instrs[k].addr)
+                self.end_iteration(len(entry[0]), instrs[k].addr, 1, chunked)
                 after = k + 1
             if end is not None and len(end[0]) != len(entry[0]):
                 raise NotStructured("loop body changes the number of locals")
@@ -466,12 +546,13 @@ class _Codegen:
             return None
         return p, lb, le, lu
 
-    def for_loop(self, i: int, shape: tuple[int, int, int, int]) -> tuple[int, _Loop, Any]:
+    def for_loop(
+        self, i: int, shape: tuple[int, int, int, int], chunked: bool
+    ) -> tuple[int, _Loop, Any]:
         p, lb, le, lu = shape
         instrs = self.instrs
         nslots = len(self.types)
-        self.emit("while True:", instrs[i].addr)
-        self.indent += 1
+        self.open_loop(instrs[i].addr, 2, chunked)
         loop = _Loop(instrs[le].addr, i)
         self.region(i, p, loop, leaves=1)
         cond = self.pop()
@@ -485,14 +566,35 @@ class _Codegen:
             if part.exits is not None:
                 self.join_exit(loop, *part.exits)
         end = None if self.dead else (list(self.types), list(self.ranges))
-        self.end_iteration(nslots, instrs[lb - 1].addr, jumps=2)
+        self.end_iteration(nslots, instrs[lb - 1].addr, 2, chunked)
         return le, loop, end
 
-    def end_iteration(self, nslots: int, offset: int, jumps: int = 1) -> None:
+    def open_loop(self, header: int, jumps: int, chunked: bool) -> None:
+        """Start a loop's code: `while True:`, and when chunked, the iteration counter as
+        a `for` over the counts of one chunk (see end_iteration)."""
+        self.emit("while True:", header)
+        self.indent += 1
+        if chunked:
+            self.emit(f"for {self.counters[-1]} in _KS{jumps}:", header)
+            self.indent += 1
+
+    def end_iteration(self, nslots: int, offset: int, jumps: int, chunked: bool) -> None:
+        """End a loop's code. A chunked loop counts its iterations down by `for` over a
+        tuple (one C step an iteration) and settles each chunk in the `for`'s `else`:
+        exactly when the counter of the unchunked form reaches 0, with the same value in
+        the counter at every iteration. A loop exit (`break`) leaves the `for`, skipping
+        the `else`, and then the `while`."""
         if not self.dead:
             if len(self.types) != nslots:
                 raise NotStructured("loop body changes the number of locals")
-            self.tick(offset, jumps)
+            if not chunked:
+                self.tick(offset, jumps)
+        if chunked:
+            self.indent -= 1
+            self.emit("else:", offset)
+            self.emit("    _tick()", offset)
+            self.emit("    continue", offset)
+            self.emit("break", offset)
         self.indent -= 1
 
     def note_exit(self, loop: _Loop, cond: _Expr | None = None, holds: bool = True) -> None:
@@ -647,7 +749,7 @@ class _Codegen:
         elif op is Op.TGET:
             self.tget(ins)
         elif op is Op.CALLC or op is Op.CALLS:
-            self.call(ins)
+            self.call(ins, None)
         elif op is Op.PUSHCN:
             t = self.temp()
             entry = self.entry_name(ins.arg, 1)  # type: ignore[arg-type]
@@ -686,8 +788,20 @@ class _Codegen:
         elif op is Op.RET0 or op is Op.RET1:
             if self.toplevel:
                 raise NotStructured("return at top level")
-            value = "None" if op is Op.RET0 else self.val(self.pop())
+            e = None if op is Op.RET0 else self.pop()
+            value = "None" if e is None else self.val(e)
             self.settle(at)
+            sc = self.selfcall
+            if sc is not None:
+                ty = NIL if e is None else self.vtype(e)
+                if not self.tail_depth:
+                    sc.returns.append(ty)
+                if sc.ret != ANY and ty != sc.ret:
+                    # Not provably the assumed type: the unguarded body hands its caller
+                    # anything else through `_Deopt` (the guarded entry just returns).
+                    cls = _GUARD_CLASS[sc.ret]
+                    check = f"if {value}.__class__ is not {cls}: " if ty == ANY else ""
+                    self.emit(f"{check}raise _Deopt({value})", at, _DEOPT_ONLY)
             self.emit(f"return {value}", at)
             self.stack.clear()
             self.dead = True
@@ -708,10 +822,12 @@ class _Codegen:
         ta, tb = self.vtype(a), self.vtype(b)
         at = ins.addr
         if ta == INT and tb == INT:
-            self.emit(f"{t} = {av} {sym} {bv}", at)
             rng = _interval(
                 ins.op, a.rng if a.ty == INT else (0, 1), b.rng if b.ty == INT else (0, 1)
             )
+            if rng is not None and self.inline_expr(f"({av} {sym} {bv})", INT, rng):
+                return  # provably inside int32: cannot fail or wrap, so no statement
+            self.emit(f"{t} = {av} {sym} {bv}", at)
             if rng is None:  # it may leave int32: wrap
                 self.emit(self.wrap_check(t, ins.op, b), at)
             self.push(t, INT, rng=rng)
@@ -727,7 +843,7 @@ class _Codegen:
             self.emit(f"try: {t} = {av} {sym} {bv}", at)
             self.emit(f"except _TypeError: {t} = {slow}({av}, {bv})", at)
             self.emit(
-                f"if {t}.__class__ is not _int or not -1073741824 <= {t} <= 1073741823: "
+                f"if {t}.__class__ is not _int or {t} > 1073741823 or {t} < -1073741823: "
                 f"{t} = _redo({slow}, {av}, {bv}, {t})",
                 at,
             )
@@ -762,15 +878,25 @@ class _Codegen:
 
     @staticmethod
     def wrap_check(t: str, op: Op, b: _Expr) -> str:
-        """The int32 overflow test. Its bounds are +-2**30 because CPython 3.11 specializes
-        comparisons only with such "compact" ints; `_i32` is exact for everything beyond.
-        Adding or subtracting a small literal can only leave the range one way."""
+        """The int32 overflow test. Its bounds are +-(2**30 - 1) because CPython 3.11
+        specializes comparisons only with "compact" ints (magnitude below 2**30; -2**30 is
+        not one), and two plain tests beat a chained comparison; `_i32` is exact for
+        everything beyond. Adding or subtracting a small literal can only leave one way."""
         small = b.ty == INT and b.const is not None and 0 <= b.const < 0x40000000
         if small and op is Op.ADD:
             return f"if {t} > 1073741823: {t} = _i32({t})"
         if small and op is Op.SUB:
-            return f"if {t} < -1073741824: {t} = _i32({t})"
-        return f"if not -1073741824 <= {t} <= 1073741823: {t} = _i32({t})"
+            return f"if {t} < -1073741823: {t} = _i32({t})"
+        return f"if {t} > 1073741823 or {t} < -1073741823: {t} = _i32({t})"
+
+    def inline_expr(self, code: str, ty: str, rng: Range = None) -> bool:
+        """Push an operation that cannot fail as an expression rather than a statement into
+        a temporary (saving a store and a load); False when it is too long to repeat, as
+        `dup` may copy it and every use evaluates it."""
+        if len(code) > 48:
+            return False
+        self.push(code, ty, rng=rng)
+        return True
 
     def helper_binary(self, ins: Instruction) -> None:
         b, a = self.pop(), self.pop()
@@ -918,7 +1044,8 @@ class _Codegen:
         else:
             self.emit(f"{tc}[{kv}] = {vv}", at)
 
-    def call(self, ins: Instruction) -> None:
+    def call(self, ins: Instruction, context: tuple[int, int, Any, int] | None) -> None:
+        """A call; `context` is the (index, region end, loop, leaves) of region() around it."""
         n = self.pop()
         if n.ty != INT or n.const is None or n.const < 0:
             raise NotStructured("call with a computed argument count")
@@ -926,28 +1053,165 @@ class _Codegen:
         c = self.pop()
         self.pop()  # the self slot below the closure: its value is ignored
         t = self.temp()
-        argv = "".join(f", {self.val(a)}" for a in args)
         at = ins.addr
         if c.ty not in (ANY, CLOSURE):
             self.emit(f"{t} = _not_callable({self.val(c)})", at)
+        elif self.is_self_call(c, args):
+            self.self_call(c, args, t, at, context)
+            return
         elif self.direct_native(c, args, t, at):
             # Not the native's declared type: the unguarded path calls whatever closure
             # the name holds by then, which may return anything.
             self.push(t)
             return
         else:
-            cc = c.code
-            # Zero-cost try: a non-closure has no `.fn`, a wrong argument count is a
-            # TypeError raised at this very call; _call_failed tells those from errors
-            # raised inside the callee, which it re-raises.
-            # `_fn = c.fn; _fn(...)`: CPython 3.11 specializes a slot load, not a method load.
-            self.emit(f"try: _fn = {cc}.fn; {t} = _fn({cc}{argv})", at)
-            self.emit(
-                f"except (_TypeError, _AttributeError) as _e: "
-                f"{t} = _call_failed(_e, {cc}, ({''.join(f'{self.val(a)}, ' for a in args)}))",
-                at,
-            )
+            for line in self.closure_call(c, args, t):
+                self.emit(line, at)
         self.push(t)
+
+    def closure_call(self, c: _Expr, args: list[_Expr], t: str) -> list[str]:
+        """The lines of a call through the closure protocol, result in `t`."""
+        cc = c.code
+        argv = "".join(f", {self.val(a)}" for a in args)
+        tup = "".join(f"{self.val(a)}, " for a in args)
+        # Zero-cost try: a non-closure has no `.fn`, a wrong argument count is a
+        # TypeError raised at this very call; _call_failed tells those from errors
+        # raised inside the callee, which it re-raises.
+        # `_fn = c.fn; _fn(...)`: CPython 3.11 specializes a slot load, not a method load.
+        return [
+            f"try: _fn = {cc}.fn; {t} = _fn({cc}{argv})",
+            f"except (_TypeError, _AttributeError): "
+            f"{t} = _call_failed(_exc_info()[1], {cc}, ({tup}))",
+        ]
+
+    def is_self_call(self, c: _Expr, args: list[_Expr]) -> bool:
+        """Whether a call looks like a call of the running function (its global holds it at
+        translation time) with arguments of the types the unguarded body assumes."""
+        sc, o = self.selfcall, c.origin
+        return (
+            sc is not None
+            and o.__class__ is Closure
+            and not o.native
+            and o.ref == sc.addr
+            and len(o.actrec) == sc.n_actrec
+            and len(args) == len(sc.spec)
+            and all(ty == ANY or self.vtype(a) == ty for a, ty in zip(args, sc.spec, strict=True))
+        )
+
+    def self_call(
+        self,
+        c: _Expr,
+        args: list[_Expr],
+        t: str,
+        at: int,
+        context: tuple[int, int, Any, int] | None,
+    ) -> None:
+        """A call of what may be the running closure: if the callee is `_C` (identity, at
+        run time), the unguarded body is called directly. Any closure running this
+        translation executes this bytecode with `_C`'s captured record, and the arguments
+        have the speculated types, so that is what `_C.fn` would do, one frame the same.
+
+        When the body is assumed to return type T (`ret`), the rest of the region after
+        the call is emitted twice: once where the result is T (the direct call returned),
+        and once, after a `_Deopt` or a call through the closure protocol, where it may be
+        anything. The second copy must end in a return (so the two never merge)."""
+        sc = self.selfcall
+        assert sc is not None
+        sc.sites += 1
+        cc = c.code
+        direct = f"{t} = {sc.name}(_C{''.join(f', {self.val(a)}' for a in args)})"
+        general = self.closure_call(c, args, t)
+        callee = self.unload_global(c, args)
+        if callee != cc:  # test the global itself; only the general call needs the temporary
+            general.insert(0, f"{cc} = {callee}")
+        tail = sc.ret != ANY and context is not None and not context[3]
+        if tail and not self.tail_depth and sc.sites <= _MAX_TAILS:
+            if self.tail_twice(callee, direct, general, t, at, context):
+                return
+        self.emit(f"if {callee} is _C:", at)
+        if sc.ret == ANY:  # the body never raises _Deopt
+            self.emit(f"    {direct}", at)
+        else:
+            self.emit(f"    try: {direct}", at)
+            self.emit(f"    except _Deopt: {t} = _exc_info()[1].args[0]", at)
+        self.emit("else:", at)
+        for line in general:
+            self.emit(f"    {line}", at)
+        self.push(t)
+
+    def unload_global(self, c: _Expr, args: list[_Expr]) -> str:
+        """The global name a callee was just loaded from, taking back the load into its
+        temporary when nothing ran since (so the global still holds that value) and
+        nothing else reads it; else the callee's code."""
+        if not self.lines:
+            return c.code
+        indent, text, _, flags = self.lines[-1]
+        name = text.removeprefix(f"{c.code} = ")
+        if indent != self.indent or flags or name == text or python_name(name) != name:
+            return c.code
+        if any(re.search(rf"\b{c.code}\b", e.code) for e in (*self.stack, *args)):
+            return c.code
+        self.lines.pop()
+        return name
+
+    def tail_twice(
+        self,
+        callee: str,
+        direct: str,
+        general: list[str],
+        t: str,
+        at: int,
+        context: tuple[int, int, Any, int],
+    ) -> bool:
+        """Emit a direct self-call whose result has the assumed type, with the rest of the
+        region copied for the other cases (see self_call); False, with nothing emitted,
+        when that rest does not end in a return. The shape:
+
+            if callee is not _C:
+                <general call>; <rest, result unknown>
+            try: <direct call>
+            except _Deopt:
+                <result from the _Deopt>; <rest, result unknown>
+            <rest, result of the assumed type>
+        """
+        sc = self.selfcall
+        assert sc is not None
+        i, j, loop, _ = context
+        snap = self.snapshot()
+        ntemps, stack, counters = self.ntemps, list(self.stack), list(self.counters)
+        exits = loop.exits if loop is not None else None
+        mark = len(self.lines)
+        self.indent += 1
+        self.stack.append(_Expr(t))
+        self.tail_depth += 1
+        try:
+            self.region(i + 1, j, loop)
+            ends = self.dead
+        except NotStructured:
+            ends = False
+        finally:
+            self.tail_depth -= 1
+        rest = self.lines[mark:]
+        self.restore(snap)
+        # The copies never rejoin: their temporaries' names are free again (a smaller frame).
+        self.ntemps, self.stack, self.counters = ntemps, stack, counters
+        if not ends:
+            if loop is not None:
+                loop.exits = exits  # the breaks of the abandoned copy are not emitted
+            return False
+        self.emit(f"if {callee} is not _C:", at)
+        for line in general:
+            self.emit(f"    {line}", at)
+        for indent, text, offset, flags in rest:
+            self.emit(text, offset, flags, indent)
+        self.emit(f"try: {direct}", at)
+        self.emit("except _Deopt:", at)
+        self.emit(f"    {t} = _exc_info()[1].args[0]", at)
+        for indent, text, offset, flags in rest:
+            self.emit(text, offset, flags, indent)
+        # Below: reached only when the direct call returned normally.
+        self.stack.append(_Expr(t, sc.ret))
+        return True
 
     def direct_native(self, c: _Expr, args: list[_Expr], t: str, at: int) -> bool:
         """Call a host function's implementation directly when the callee is, at run time,
@@ -976,12 +1240,8 @@ class _Codegen:
             direct = f"({expr}) if {' and '.join(tests)} else {direct}" if tests else expr
         self.emit(f"if {cc} is {guard}: {t} = {direct}", at)
         self.emit("else:", at)
-        self.emit(f"    try: _fn = {cc}.fn; {t} = _fn({cc}{argv})", at)
-        self.emit(
-            f"    except (_TypeError, _AttributeError) as _e: "
-            f"{t} = _call_failed(_e, {cc}, ({''.join(f'{self.val(a)}, ' for a in args)}))",
-            at,
-        )
+        for line in self.closure_call(c, args, t):
+            self.emit(f"    {line}", at)
         return True
 
     def inline_native(
@@ -1088,48 +1348,77 @@ def translate(
         # address, so only the interpreter can start in the middle.
         raise NotStructured("entry is not the function's lowest address")
     if toplevel:
-        slot_types: list[str] = []
+        return _build(vm, instrs, _generate(vm, instrs, [], True, None), None, 0, 0, None)
+    spec = speculate or (ANY,) * nargs
+    slot_types = [ANY] * n_actrec + list(spec)
+    failure = NotStructured("no translation")
+    for gen, sc in _function_bodies(vm, instrs, slot_types, n_actrec, spec):
+        try:
+            return _build(vm, instrs, gen, sc, n_actrec, nargs, speculate)
+        except NotStructured as e:  # CPython refused it: try the next, simpler, candidate
+            failure = e
+    raise failure
+
+
+def _build(
+    vm: VM,
+    instrs: list[Instruction],
+    gen: _Codegen,
+    sc: _SelfCall | None,
+    n_actrec: int,
+    nargs: int,
+    speculate: tuple[str, ...] | None,
+) -> Callable[..., Any]:
+    """Compile a generated function (and its unguarded body, if it calls itself directly)."""
+    first = addr = instrs[0].addr
+    serial = next(_serial)
+    name = f"<buzz:{vm.program.path}@{addr}#{serial}>"  # type: ignore[union-attr]
+    # Unique function names: code objects compare by value, not by file name, and
+    # LINE_MAPS holds each under the first equal one, whose death would remove the entry.
+    fname, bname = f"_f{serial}", f"_b{serial}"
+    source: list[str] = []
+    offsets = [first]  # line numbers start at 1; index 0 is unused
+
+    def define(head: str, prologue: list[str], deopt: bool) -> None:
+        if gen.global_names:
+            prologue = [f"global {', '.join(sorted(gen.global_names))}", *prologue]
+        source.append(head)
+        offsets.append(first)
+        for text in prologue:
+            source.append("    " + text)
+            offsets.append(first)
+        for indent, text, offset, flags in gen.lines:
+            if deopt or not flags & _DEOPT_ONLY:
+                source.append("    " * indent + text)
+                offsets.append(offset)
+        if not gen.lines:
+            source.append("    return None")
+            offsets.append(first)
+
+    twice = False
+    if gen.toplevel:
+        define(f"def {fname}():", [], False)
     else:
-        spec = speculate or (ANY,) * nargs
-        slot_types = [ANY] * n_actrec + list(spec)
-    gen = _Codegen(vm, instrs, slot_types, toplevel)
-    gen.region(0, len(instrs), None)
-    first = instrs[0].addr
-    name = f"<buzz:{vm.program.path}@{addr}#{next(_serial)}>"  # type: ignore[union-attr]
-    prologue: list[str] = []
-    if toplevel:
-        head = "def _f():"
-    else:
-        params = [f"_l{n_actrec + k}" for k in range(nargs)]
-        head = f"def _f(_C{''.join(f', {p}' for p in params)}):"
+        params = "".join(f", _l{n_actrec + k}" for k in range(nargs))
         guards = [
-            f"{p}.__class__ is not {_GUARD_CLASS[ty]}"
-            for p, ty in zip(params, speculate or (), strict=False)
+            f"_l{n_actrec + k}.__class__ is not {_GUARD_CLASS[ty]}"
+            for k, ty in enumerate(speculate or ())
             if ty in _GUARD_CLASS
         ]
+        unpack = []
+        if any(k < n_actrec for k in gen.used_locals):
+            unpack.append(f"{', '.join(f'_l{k}' for k in range(n_actrec))}, = _C.actrec")
+        prologue = list(unpack)
         if guards:
             general = f"_g{addr}_{n_actrec}_{nargs}"
             gen.consts[general] = vm.entry(addr, n_actrec).call_general
-            call = f"{general}(_C{''.join(f', {p}' for p in params)})"
-            prologue.append(f"if {' or '.join(guards)}: return {call}")
-        if any(k < n_actrec for k in gen.used_locals):
-            prologue.append(f"{', '.join(f'_l{k}' for k in range(n_actrec))}, = _C.actrec")
-    if gen.global_names:
-        prologue.insert(0, f"global {', '.join(sorted(gen.global_names))}")
-    source = [head]
-    offsets = [first, first]  # line numbers start at 1; index 0 is unused
-    for text in prologue:
-        source.append("    " + text)
-        offsets.append(first)
-    for indent, text, offset in gen.lines:
-        source.append("    " * indent + text)
-        offsets.append(offset)
-    if not gen.lines:
-        source.append("    return None")
-        offsets.append(first)
-    namespace = vm.namespace()
-    for key, value in gen.consts.items():
-        namespace.setdefault(key, value)
+            prologue.insert(0, f"if {' or '.join(guards)}: return {general}(_C{params})")
+        define(f"def {fname}(_C{params}):", prologue, False)
+        # The unguarded body that direct self-calls enter: a copy, so that entering
+        # through the guard costs no extra call (the same function when nothing differs).
+        twice = sc is not None and (bool(guards) or sc.ret != ANY)
+        if twice:
+            define(f"def {bname}(_C{params}):", unpack, True)
     text = "\n".join(source) + "\n"
     if os.environ.get("BVM_DUMP_PY"):  # a developer's window into the translator
         sys.stderr.write(f"# {name}\n{text}\n")
@@ -1137,10 +1426,66 @@ def translate(
         code = compile(text, name, "exec")
     except (SyntaxError, RecursionError, MemoryError, ValueError) as e:
         raise NotStructured(f"generated code did not compile: {e}") from None
+    namespace = vm.namespace()
+    for key, value in gen.consts.items():
+        namespace.setdefault(key, value)
     local: dict[str, Any] = {}
     exec(code, namespace, local)
-    LINE_MAPS[local["_f"].__code__] = offsets
-    return local["_f"]
+    f = local[fname]
+    LINE_MAPS[f.__code__] = offsets
+    if sc is not None:
+        body = local[bname] if twice else f
+        LINE_MAPS[body.__code__] = offsets
+        namespace[sc.name] = body
+    return f
+
+
+def _generate(
+    vm: VM,
+    instrs: list[Instruction],
+    slot_types: list[str],
+    toplevel: bool,
+    selfcall: _SelfCall | None,
+) -> _Codegen:
+    gen = _Codegen(vm, instrs, slot_types, toplevel, selfcall)
+    gen.region(0, len(instrs), None)
+    return gen
+
+
+def _function_bodies(
+    vm: VM, instrs: list[Instruction], slot_types: list[str], n_actrec: int, spec: tuple
+) -> Iterator[tuple[_Codegen, _SelfCall | None]]:
+    """A function's candidate codes, best first; each with its self-call record (None when
+    it makes no direct self-calls). The last makes none, as before they existed.
+
+    The direct self-calls' result type is inferred optimistically: assume the body
+    returns T (the one type its returns have, apart from unknown ones), translate again,
+    and keep that when every return outside the deoptimized tails then has type T."""
+    if SELF_CALLS:
+        addr = instrs[0].addr
+        sc = _SelfCall(addr, n_actrec, spec, f"_s{next(_serial)}")
+        try:
+            gen = _generate(vm, instrs, slot_types, False, sc)
+        except NotStructured:
+            gen = None
+        if gen is not None and not sc.sites:
+            yield gen, None  # the code without self-calls: there is no simpler one
+            return
+        if gen is not None:
+            known = {ty for ty in sc.returns if ty != ANY}
+            if gen.dead and len(known) == 1 and known <= {INT, FLOAT}:
+                typed = _SelfCall(addr, n_actrec, spec, sc.name, known.pop())
+                try:
+                    gen2 = _generate(vm, instrs, slot_types, False, typed)
+                except NotStructured:
+                    gen2 = None
+                # Sound either way (a return not of the type raises _Deopt; falling off
+                # the end would not, hence `dead`); worth it when the direct calls do
+                # return the type.
+                if gen2 is not None and gen2.dead and all(t == typed.ret for t in typed.returns):
+                    yield gen2, typed
+            yield gen, sc
+    yield _generate(vm, instrs, slot_types, False, None), None
 
 
 def _redo(rule: Callable[[Any, Any], Any], a: Any, b: Any, result: Any) -> Any:
@@ -1164,6 +1509,13 @@ def helpers() -> dict[str, Any]:
         "_Table": Table,
         "_Closure": Closure,
         "_Halt": Halt,
+        # The counts of one chunk of a loop's iterations, 1 or 2 per iteration.
+        "_KS1": tuple(range(CHUNK, 0, -1)),
+        "_KS2": tuple(range(CHUNK, 0, -2)),
+        "_Deopt": _Deopt,
+        # The exception being handled, read in an `except` clause: an `as` name would be
+        # one more local in every generated frame.
+        "_exc_info": sys.exc_info,
         "_F": F32_CELL,
         "_i32": i32,
         "_redo": _redo,

@@ -6,7 +6,13 @@ logs, what it returns, and any error's message and location.
 
 from __future__ import annotations
 
+import gc
+import re
+
+import pytest
+
 import bvm
+from bvm import translate as translator
 from bvm.values import format_value
 
 
@@ -178,3 +184,291 @@ def test_code_after_an_if_else_whose_else_returns_still_runs() -> None:
     assert both(source, "f", 1)[1] == ("ok", 11)
     assert both(source, "f", 0)[1] == ("ok", 2)
     assert both(source, "g", 0) == (["else"], ("ok", 3))
+
+
+# ---------------------------------------------------------------- direct self-calls
+# A call of the running closure enters its unguarded body directly, and a body inferred to
+# return ints hands anything else back through `_Deopt`. Each case below runs translated
+# and interpreted (`both`), and where the interpreter cannot say (budget chunks, stack
+# depth) translated with and without self-calls.
+
+
+def self_called(source: str, call: str, *args: object) -> bool:
+    """Whether a translation of the program made a direct self-call body (so that the
+    cases here do test it)."""
+    vm = bvm.VM()
+    vm.load(bvm.compile_source(source, "t.bzz"))
+    vm.register("log", lambda *a: None)
+    vm.execute()
+    try:
+        vm.call(call, *args)
+    except bvm.BuzzError:
+        pass
+    return any(re.fullmatch(r"_s\d+", name) for name in vm.globals)
+
+
+FIB = "function fib(n) {\n  if (n < 2) return n\n  return fib(n - 1) + fib(n - 2)\n}\n"
+
+
+def test_self_call_fib() -> None:
+    assert self_called(FIB, "fib", 10)
+    assert both(FIB, "fib", 15)[1] == ("ok", 610)
+    assert both(FIB, "fib", 3.5)[1] == ("ok", 3.5)  # floats: the guard's general path
+    assert both(FIB, "fib", "x")[1][0] == "error"
+
+
+def test_self_call_sum_wraps_at_int32() -> None:
+    source = (
+        "function big(n) {\n  if (n < 1) return 2147483000\n"
+        "  return big(n - 1) + big(n - 1) + n\n}\n"
+        "function neg(n) {\n  if (n < 1) return -2147483000\n  return neg(n - 1) - 1000 * n\n}\n"
+    )
+    assert self_called(source, "big", 3)
+    expected = 2147483000
+    for n in range(1, 7):
+        expected = (expected * 2 + n + 2**31) % 2**32 - 2**31
+    assert both(source, "big", 6)[1] == ("ok", expected)
+    assert both(source, "neg", 5)[1][0] == "ok"
+
+
+def test_global_reassigned_during_recursion() -> None:
+    # At depth 3 the global becomes another function returning a float: the direct calls
+    # below it return, and every frame above continues with a float.
+    # (`/ 2` of an int is a floor division: an int assumed wrongly would show.)
+    source = (
+        "function g(n) { return 0.5 }\n"
+        "function f(n) {\n  if (n < 1) return 0\n  if (n == 3) f = g\n"
+        "  return f(n - 1) / 2 + 1\n}\n"
+    )
+    assert self_called(source, "f", 2)
+    assert both(source, "f", 6)[1] == ("ok", 1.90625)
+    source += "function h() { var a = f(6)  return a + f(2) }\n"
+    assert both(source, "h")[1] == ("ok", 2.40625)
+    strings = source.replace("return 0.5", 'return "s"')
+    assert both(strings, "f", 6)[1][0] == "error"
+
+
+def test_global_reassigned_to_an_int_function_and_back() -> None:
+    source = (
+        "var keep\n"
+        "function g(n) { f = keep  return 100 }\n"
+        "function f(n) {\n  if (n < 1) return 0\n  if (n == 4) { keep = f  f = g }\n"
+        "  var a = f(n - 1)\n  return a + f(n - 2) + 1\n}\n"
+    )
+    assert self_called(source, "f", 3)
+    outcome = both(source, "f", 9)
+    assert outcome[1][0] == "ok"
+
+
+def test_global_reassigned_to_a_non_function_during_recursion() -> None:
+    source = (
+        "function f(n) {\n  if (n < 1) return 0\n  if (n == 2) f = 7\n  return f(n - 1) + 1\n}\n"
+    )
+    assert self_called(source, "f", 1)
+    _, outcome = both(source, "f", 5)
+    assert outcome[0] == "error" and "expected closure, got integer" in outcome[1]
+
+
+def test_recursion_returning_a_float_on_one_path() -> None:
+    source = (
+        "function f(n) {\n  if (n == 2) return 0.25\n  if (n < 1) return 1\n"
+        "  return f(n - 1) + f(n - 2)\n}\n"
+        "function h(n) {\n  if (n < 1) return 0.5\n  return h(n - 1) * 1.5\n}\n"
+    )
+    assert self_called(source, "f", 5)
+    assert both(source, "f", 7)[1][0] == "ok"
+    assert both(source, "f", 1)[1] == ("ok", 2)
+    assert both(source, "h", 30)[1][0] == "ok"  # inferred float, rounded to binary32
+
+
+def test_recursion_returning_nil_and_tables() -> None:
+    source = (
+        "function f(n) {\n  if (n < 1) return nil\n  var r = f(n - 1)\n"
+        "  if (r == nil) return {.depth = n}\n  r.depth = r.depth + n\n  return r\n}\n"
+        "function c(n) {\n  if (n < 1) return 0\n  if (n == 3) return nil\n"
+        "  return c(n - 1) + 1\n}\n"
+    )
+    assert both(source, "f", 10)[1] == ("ok", {"depth": 55})
+    assert both(source, "c", 2)[1] == ("ok", 2)
+    _, outcome = both(source, "c", 6)
+    assert outcome[0] == "error" and "nil" in outcome[1]
+
+
+def test_recursive_call_with_another_argument_count() -> None:
+    source = (
+        "function f(n, m) {\n  if (n < 1) return m\n  if (n == 3) return f(n - 1)\n"
+        "  return f(n - 1, m) + 1\n}\n"
+        "function g(n) {\n  if (n < 1) return 0\n  return g(n - 1, 1, 2) + 1\n}\n"
+    )
+    assert self_called(source, "f", 5, 1)
+    both(source, "f", 5, 10)
+    assert both(source, "f", 2, 10)[1] == ("ok", 12)
+    both(source, "g", 4)
+
+
+def test_error_inside_a_direct_self_call_is_located() -> None:
+    source = (
+        "function f(n) {\n  if (n < 1) {\n    return n.x\n  }\n"
+        "  return f(n - 1) + 1\n}\n"
+        "function g(n) {\n  if (n < 1) return 0\n  var t = {}\n  t.x = g(n - 1)\n"
+        "  return t.x.y\n}\n"
+    )
+    assert self_called(source, "f", 3)
+    _, outcome = both(source, "f", 5)
+    assert outcome[0] == "error" and outcome[2] is not None
+    locations = []
+    for translated in (True, False):
+        vm = bvm.VM(translate=translated)
+        vm.load(bvm.compile_source(source, "t.bzz"))
+        vm.execute()
+        with pytest.raises(bvm.BuzzError) as info:
+            vm.call("f", 4)
+        locations.append(info.value.location)
+    assert locations[0] == locations[1] and locations[0][1] in (3, 4)
+    _, outcome = both(source, "g", 3)
+    assert outcome[0] == "error"
+
+
+def test_self_calls_count_the_same_budget(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Loops inside the recursion: the budget runs out at the same point, with the same
+    # location, with and without direct self-calls.
+    # The second program's frames return through `_Deopt` once the global changes.
+    # Returns inside the loop: they settle its iterations first.
+    source = (
+        "function f(n) {\n  var i = 0\n  var s = 0\n  while (i < 9) {\n    s = s + i\n"
+        "    i = i + 1\n    if (i == 4) {\n      if (n < 2) return s\n"
+        "      return f(n - 1) + f(n - 2) + s\n    }\n  }\n  return s\n}\n"
+    )
+    deopt = source.replace(
+        "if (n < 2) return s\n", "if (n < 2) return s\n      if (n == 6) f = g\n"
+    )
+    deopt += "function g(n) {\n  var i = 0\n  while (i < 7) { i = i + 1 }\n  return 0.5\n}\n"
+    for text in (source, deopt):
+        program = bvm.compile_source(text, "t.bzz")
+        assert self_called(text, "f", 5)
+        for n in (5, 12, 16, 20):
+            for ticks in (100, 5000, 100_000):
+                outcomes = []
+                for on in (True, False):
+                    with monkeypatch.context() as m:
+                        m.setattr(translator, "SELF_CALLS", on)
+                        vm = bvm.VM(max_ticks=ticks)
+                        vm.load(program)
+                        vm.execute()
+                        try:
+                            outcomes.append(("ok", vm.call("f", n), vm.budget.used))
+                        except bvm.BuzzError as e:
+                            outcomes.append(("error", e.message, e.offset, vm.budget.used))
+                assert outcomes[0] == outcomes[1]
+
+
+def test_self_calls_keep_the_recursion_depth(monkeypatch: pytest.MonkeyPatch) -> None:
+    # One Python frame per Buzz call either way: the deepest recursion that works is the
+    # same, and deeper is the same clean error.
+    source = "function d(n) {\n  if (n < 1) return 0\n  return d(n - 1) + 1\n}\n"
+    program = bvm.compile_source(source, "t.bzz")
+    assert self_called(source, "d", 3)
+
+    def deepest(on: bool) -> int:
+        with monkeypatch.context() as m:
+            m.setattr(translator, "SELF_CALLS", on)
+            lo, hi = 1, 20_000
+            while lo < hi:
+                mid = (lo + hi + 1) // 2
+                vm = bvm.VM()
+                vm.load(program)
+                vm.execute()
+                try:
+                    vm.call("d", mid)
+                    lo = mid
+                except bvm.BuzzError as e:
+                    assert "stack overflow" in e.message
+                    hi = mid - 1
+            return lo
+
+    assert 5000 < deepest(True) == deepest(False) < 20_000
+    errors = []
+    for on in (True, False):
+        with monkeypatch.context() as m:
+            m.setattr(translator, "SELF_CALLS", on)
+            errors.append(run(program, True, "d", 20_000))
+    assert errors[0] == errors[1] and errors[0][1][0] == "error"
+
+
+def test_self_call_with_captured_variables_and_methods() -> None:
+    source = (
+        "function mk(k) {\n"
+        "  return function(n) { if (n < 1) return k  return rec(n - 1) + k }\n"
+        "}\n"
+        "rec = mk(3)\n"
+        "t = {.f = function(n) { if (n < 1) return 0  return t.f(n - 1) + 2 }}\n"
+        "function run() { return rec(5) + t.f(4) }\n"
+    )
+    assert both(source, "run")[1] == ("ok", 18 + 8)
+
+
+def test_chunked_loops_count_the_same_budget(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Loops count their iterations with a `for` over one chunk's counts; the budget must
+    # be the same as with the counter they replace: used on success, and on exhaustion
+    # the same error at the same place. Around the chunk size (1000 jumps), with early
+    # returns, nested loops and `for` loops (two jumps an iteration).
+    source = (
+        "function w(n, stop) {\n  var i = 0\n  var s = 0\n  while (i < n) {\n"
+        "    if (i == stop) return s\n    var j = 0\n    while (j < 3) { s = s + j  j = j + 1 }\n"
+        "    i = i + 1\n  }\n  return s\n}\n"
+        "function f(n, stop) {\n  var i\n  var s = 0\n  for (i = 0, i < n, i = i + 1) {\n"
+        "    if (i == stop) return s\n    s = s + i\n  }\n  return s\n}\n"
+    )
+    program = bvm.compile_source(source, "t.bzz")
+    vms = []
+    for chunked in (True, False):  # translated on their first call, either way
+        with monkeypatch.context() as m:
+            m.setattr(translator, "CHUNKED_LOOPS", chunked)
+            vm = bvm.VM()
+            vm.load(program)
+            vm.execute()
+            vm.call("w", 0, 0)
+            vm.call("f", 0, 0)
+            vms.append(vm)
+    ref = bvm.VM(translate=False)
+    ref.load(program)
+    ref.execute()
+    for call in ("w", "f"):
+        for n in (0, 1, 499, 500, 501, 999, 1000, 1001, 2000):
+            for stop in (-1, n // 2):
+                for ticks in (None, 1000, 1500):
+                    outcomes = []
+                    for vm in vms:
+                        vm.max_ticks = ticks
+                        vm.reset_error()
+                        try:
+                            outcomes.append(("ok", vm.call(call, n, stop), vm.budget.used))
+                        except bvm.BuzzError as e:
+                            outcomes.append(("error", e.message, e.offset, vm.budget.used))
+                    assert outcomes[0] == outcomes[1], (call, n, stop, ticks)
+                    if ticks is None and n in (0, 1, 500, 1001):  # (the interpreter is slow)
+                        assert ref.call(call, n, stop) == outcomes[0][1]
+                        assert ref.budget.used == outcomes[0][2]
+
+
+def test_error_location_survives_an_equal_translation_being_collected() -> None:
+    # Two VMs running one script make equal code objects (code compares by value); the
+    # line map of the live one must not go with the other.
+    program = bvm.compile_source("function f(x) {\n  var t = {}\n  return t.a.b\n}\n", "t.bzz")
+
+    def fresh() -> bvm.VM:
+        vm = bvm.VM()
+        vm.load(program)
+        vm.execute()
+        with pytest.raises(bvm.BuzzError):
+            vm.call("f", 1)
+        vm.reset_error()
+        return vm
+
+    first, second = fresh(), fresh()
+    del first
+    gc.collect()
+    with pytest.raises(bvm.BuzzError) as info:
+        second.call("f", 1)
+    assert info.value.offset is not None
+    assert info.value.offset == run(program, False, "f", 1)[1][2]
