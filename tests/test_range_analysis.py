@@ -114,3 +114,19 @@ def test_guarded_recursion(limit: int, step: int, cmp: str) -> None:
     function f() {{ return g({limit} - {step}, 0) }}
     """
     assert run(src, True) == run(src, False)
+
+
+@settings(max_examples=150, deadline=None)
+@given(start=EDGE, step=STEP, scale=STEP, cmp=CMP)
+def test_recursion_typed_by_its_own_results(start: int, step: int, scale: int, cmp: str) -> None:
+    # The direct self-calls' results are typed int (every return is), so the sums below
+    # keep only the int32 wrap: it must still happen at each level.
+    src = f"""
+    function g(x, depth) {{
+      if (depth > 4) return x
+      if (x {cmp} {start}) return g(x * {scale}, depth + 2) - x
+      return g(x + {step}, depth + 1) + g(x - {step}, depth + 2) + x
+    }}
+    function f() {{ return g({start}, 0) }}
+    """
+    assert run(src, True) == run(src, False)
