@@ -168,3 +168,33 @@ def test_cells_partition_the_polygon(sites: list[tuple[float, float]]) -> None:
         for v in cell:
             mine = math.dist(v, distinct[i])
             assert all(mine <= math.dist(v, s) + 1e-6 for s in distinct)
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(
+    me=st.tuples(st.floats(-40, 40), st.floats(-40, 40)),
+    others=st.lists(st.tuples(st.floats(-80, 80), st.floats(-80, 80)), max_size=14),
+)
+def test_qhull_cell_matches_scipy_halfspace_intersection(
+    me: tuple[float, float], others: list[tuple[float, float]]
+) -> None:
+    """The dual-hull cell has the corners scipy's HalfspaceIntersection finds, in order."""
+    from scipy.spatial import HalfspaceIntersection
+
+    region = vor.convex_hull([(-50, -50), (50, -50), (50, 50), (-50, 50)], 10.0)
+    others = [o for o in others if math.dist(o, me) > 1e-3]
+    cell = vor._qhull_cell(me, others, region)
+    assert cell is not None
+    rows = [
+        (ox - me[0], oy - me[1], -0.5 * (ox * ox + oy * oy - me[0] ** 2 - me[1] ** 2))
+        for ox, oy in others
+    ]
+    for (x0, y0), (x1, y1) in zip(region, region[1:] + region[:1], strict=True):
+        rows.append((y1 - y0, x0 - x1, -((y1 - y0) * x0 + (x0 - x1) * y0)))
+    want = HalfspaceIntersection(np.array(rows), np.array(me)).intersections
+    # Qhull reports a corner where k half-planes meet up to k - 1 times: compare as sets.
+    for corner in want:
+        assert min(math.dist(corner, c) for c in cell) < 1e-6
+    for c in cell:
+        assert min(math.dist(c, corner) for corner in want) < 1e-6
+    assert vor.area(cell) > 0  # counter-clockwise
