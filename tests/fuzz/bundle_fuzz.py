@@ -24,19 +24,18 @@ Failures are printed with their replay id. The last line is `inputs: N, failures
 
 from __future__ import annotations
 
-import argparse
-import collections
 import math
 import random
 import struct
 import sys
-import time
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from fieldkit import bundle as B
+
+from . import runner
 
 INTERESTING_BYTES = (0, 1, 2, 3, 7, 8, 0x7F, 0x80, 0xBE, 0xFE, 0xFF)
 INTERESTING_U16 = (0, 1, 2, 3, 5, 6, 23, 24, 25, 29, 184, 185, 186, 190, 0xFF, 0x7FFF, 0xFFFF)
@@ -55,14 +54,14 @@ EXAMPLE = B.Bundle(
 
 
 @dataclass
-class Stats:
+class Stats(runner.Stats):
     """What a campaign did."""
 
-    inputs: int = 0
-    failures: int = 0
     accepted: int = 0
-    kinds: collections.Counter[str] = field(default_factory=collections.Counter)
-    failed: list[str] = field(default_factory=list)
+
+    def details(self) -> list[str]:
+        """The kinds of input run and how many were accepted."""
+        return [*super().details(), f"accepted: {self.accepted}"]
 
 
 # ---------------------------------------------------------------- valid bundles
@@ -299,32 +298,18 @@ def check(layer: str, data: Any, original: B.Bundle | None) -> tuple[bool, str |
     return True, None
 
 
-def run(
-    seed: str,
-    *,
-    seconds: float = math.inf,
-    max_inputs: int | None = None,
-    start: int = 0,
-    out: Callable[[str], None] = print,
-) -> Stats:
-    """Run inputs start, start+1, ... until the time or input budget is spent."""
-    stats = Stats()
-    deadline = time.monotonic() + seconds
-    k = start
-    while (max_inputs is None or stats.inputs < max_inputs) and (
-        stats.inputs % 256 or time.monotonic() < deadline
-    ):
-        layer, kind, data, original = make_input(seed, k)
-        accepted, failure = check(layer, data, original)
-        stats.inputs += 1
-        stats.kinds[f"{layer}/{kind}"] += 1
-        stats.accepted += accepted
-        if failure is not None:
-            stats.failures += 1
-            stats.failed.append(f"{seed}:{k}")
-            out(f"FAIL {seed}:{k} ({layer}/{kind}): {failure}")
-        k += 1
-    return stats
+def run_one(seed: str, k: int, stats: Stats, out: Callable[[str], None]) -> None:
+    """Make input k, check it, and record the outcome."""
+    layer, kind, data, original = make_input(seed, k)
+    accepted, failure = check(layer, data, original)
+    stats.kinds[f"{layer}/{kind}"] += 1
+    stats.accepted += accepted
+    if failure is not None:
+        stats.fail(f"{seed}:{k}", f"FAIL {seed}:{k} ({layer}/{kind}): {failure}", out)
+
+
+#: run(seed, *, seconds=None, max_inputs=None, start=0, out=print) -> Stats: a campaign.
+run = runner.make_run(run_one, Stats, clock_every=256)
 
 
 def replay(spec: str) -> int:
@@ -340,25 +325,7 @@ def replay(spec: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--seed", default="0")
-    ap.add_argument("--max-inputs", type=int, help="stop after this many inputs")
-    ap.add_argument("--start", type=int, default=0, help="first input index")
-    ap.add_argument("--replay", help="SEED:K -- run one input verbosely")
-    args = ap.parse_args(argv)
-    if args.replay:
-        return replay(args.replay)
-    t0 = time.monotonic()
-    stats = run(args.seed, seconds=args.seconds, max_inputs=args.max_inputs, start=args.start)
-    spent = time.monotonic() - t0
-    print(f"seed {args.seed}, {spent:.0f} s, {stats.inputs / max(spent, 1e-9):.0f} inputs/s")
-    print("kinds:", dict(sorted(stats.kinds.items())))
-    print(f"accepted: {stats.accepted}")
-    if stats.failed:
-        print("failed:", " ".join(stats.failed[:50]))
-    print(f"inputs: {stats.inputs}, failures: {stats.failures}")
-    return 1 if stats.failures else 0
+    return runner.main(argv, __doc__, run, replay)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,6 @@ Failures are printed with their replay id. The last line is `inputs: N, failures
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import random
@@ -32,13 +31,15 @@ import sys
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from pymavlink.dialects.v20 import all as mavlink2
 
 from fieldkit.autopilot.link import Autopilot, FrameReader
 from fieldkit.autopilot.vehicle_sim import PtyPair, open_pty
+
+from . import runner
 
 FLOATS = (0.0, -0.0, 1.5, -1e9, 3.4e38, math.nan, math.inf, -math.inf)
 I32 = (0, 1, -1, 2**31 - 1, -(2**31), 455049000, -736133000, 900_000_001)
@@ -245,14 +246,18 @@ def check_link(pl: PtyLink, stream: bytes) -> str | None:
 
 
 @dataclass
-class Stats:
+class Stats(runner.Stats):
     """What a campaign did."""
 
-    inputs: int = 0
-    failures: int = 0
     collisions: int = 0
     frames: int = 0
-    failed: list[str] = field(default_factory=list)
+
+    def details(self) -> list[str]:
+        """The good frames sent and the noise that passed for frames (inputs have no kinds)."""
+        return [
+            f"good frames: {self.frames}",
+            f"noise that decoded as a valid frame (not failures): {self.collisions}",
+        ]
 
 
 def run_one(seed: str, k: int, pl: PtyLink, stats: Stats, out: Callable[[str], None]) -> None:
@@ -263,39 +268,21 @@ def run_one(seed: str, k: int, pl: PtyLink, stats: Stats, out: Callable[[str], N
         problem = problem or check_link(pl, stream)
     except Exception:  # a harness error is reported, not fatal
         problem, collision = "exception: " + traceback.format_exc(limit=-3), False
-    stats.inputs += 1
     stats.frames += len(good)
     stats.collisions += collision
-    if problem is None:
-        return
-    stats.failures += 1
-    stats.failed.append(f"{seed}:{k}")
-    if stats.failures <= 20:
-        out(f"FAILURE [replay {seed}:{k}] {problem}")
+    if problem is not None:
+        stats.fail(f"{seed}:{k}", f"FAILURE [replay {seed}:{k}] {problem}", out, shown=20)
 
 
-def run(
-    seed: str,
-    *,
-    seconds: float | None = None,
-    max_inputs: int | None = None,
-    start: int = 0,
-    out: Callable[[str], None] = print,
-) -> Stats:
-    """Check inputs start, start+1, ... of `seed` until the time or the count runs out."""
-    stats = Stats()
-    end = time.monotonic() + seconds if seconds is not None else None
+def run(seed: str, **budget: Any) -> Stats:
+    """Check inputs of `seed` on one live link; `budget`: seconds, max_inputs, start, out."""
     pl = PtyLink()
     try:
-        k = start
-        while max_inputs is None or stats.inputs < max_inputs:
-            if end is not None and time.monotonic() >= end:
-                break
-            run_one(seed, k, pl, stats, out)
-            k += 1
+        # One pty serves the whole campaign: opening one per input would dominate its time.
+        on_link = runner.make_run(lambda s, k, stats, out: run_one(s, k, pl, stats, out), Stats)
+        return on_link(seed, **budget)
     finally:
         pl.close()
-    return stats
 
 
 def replay(spec: str) -> int:
@@ -317,25 +304,7 @@ def replay(spec: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--seed", default="0")
-    ap.add_argument("--max-inputs", type=int, help="stop after this many inputs")
-    ap.add_argument("--start", type=int, default=0, help="first input index")
-    ap.add_argument("--replay", help="SEED:K -- run one input verbosely")
-    args = ap.parse_args(argv)
-    if args.replay:
-        return replay(args.replay)
-    t0 = time.monotonic()
-    stats = run(args.seed, seconds=args.seconds, max_inputs=args.max_inputs, start=args.start)
-    spent = time.monotonic() - t0
-    print(f"seed {args.seed}, {spent:.0f} s, {stats.inputs / max(spent, 1e-9):.0f} inputs/s")
-    print(f"good frames: {stats.frames}")
-    print(f"noise that decoded as a valid frame (not failures): {stats.collisions}")
-    if stats.failed:
-        print("failed:", " ".join(stats.failed[:50]))
-    print(f"inputs: {stats.inputs}, failures: {stats.failures}")
-    return 1 if stats.failures else 0
+    return runner.main(argv, __doc__, run, replay)
 
 
 if __name__ == "__main__":

@@ -20,16 +20,16 @@ The last line printed is `inputs: N, failures: K`.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import random
 import sys
-import time
 import traceback
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import bvm
 
+from . import runner
 from .wire_fuzz import make_input
 
 SCRIPT = """
@@ -111,6 +111,37 @@ def check(
     return None
 
 
+@dataclass
+class Stats(runner.Stats):
+    """What a campaign did."""
+
+    payloads: int = 0
+
+
+def campaign(
+    seed: str,
+    *,
+    seconds: float | None = None,
+    max_inputs: int | None = None,
+    out: Callable[[str], None] = print,
+) -> Stats:
+    """Check batches 0, 1, ... of `seed` until the time or the count runs out."""
+    stats = Stats()
+    robots = (_robot(1), _robot(2))
+
+    def run_one(k: int) -> None:
+        nonlocal robots
+        if k % REUSE == 0:  # state carries over a while: gossip builds up, then reset
+            robots = (_robot(1), _robot(2))
+        batch = make_batch(seed, k)
+        problem = check(batch, robots)
+        stats.payloads += len(batch)
+        if problem is not None:
+            stats.fail(f"{seed}:{k}", f"FAILURE [replay {seed}:{k}] {problem}", out, shown=20)
+
+    return runner.campaign(run_one, stats, seconds=seconds, max_inputs=max_inputs)
+
+
 def run(
     seed: str,
     *,
@@ -119,45 +150,35 @@ def run(
     out: Callable[[str], None] = print,
 ) -> tuple[int, int, int]:
     """Check batches 0, 1, ... of `seed`: (inputs, payloads, failures)."""
-    end = time.monotonic() + seconds if seconds is not None else None
-    inputs = payloads = failures = 0
-    robots = (_robot(1), _robot(2))
-    while (max_inputs is None or inputs < max_inputs) and (end is None or time.monotonic() < end):
-        if inputs % REUSE == 0:  # state carries over a while: gossip builds up, then reset
-            robots = (_robot(1), _robot(2))
-        batch = make_batch(seed, inputs)
-        problem = check(batch, robots)
-        payloads += len(batch)
-        if problem is not None:
-            failures += 1
-            if failures <= 20:
-                out(f"FAILURE [replay {seed}:{inputs}] {problem}")
-        inputs += 1
-    return inputs, payloads, failures
+    stats = campaign(seed, seconds=seconds, max_inputs=max_inputs, out=out)
+    return stats.inputs, stats.payloads, stats.failures
+
+
+def replay(spec: str) -> int:
+    """Run batch SEED:K verbosely on fresh robots; 1 if it fails."""
+    seed, _, k = spec.rpartition(":")
+    batch = make_batch(seed, int(k))
+    for sender, payload in batch:
+        print(f"from {sender}: {payload[:64].hex()}{'...' if len(payload) > 64 else ''}")
+    # Replays on fresh robots: a failure that needs earlier batches' state shows with
+    # the campaign's REUSE window, so replay K-(K % REUSE) .. K if this passes.
+    problem = check(batch)
+    print("verdict:", problem or "ok")
+    return 1 if problem else 0
 
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--seed", default="0")
-    ap.add_argument("--replay", help="SEED:K -- run one batch verbosely")
-    args = ap.parse_args(argv)
+    args = runner.parse_args(
+        argv, __doc__, slices=False, replay_help="SEED:K -- run one batch verbosely"
+    )
     logging.getLogger("bvm").setLevel(logging.CRITICAL)  # the drops are counted, not shown
     if args.replay:
-        seed, _, k = args.replay.rpartition(":")
-        batch = make_batch(seed, int(k))
-        for sender, payload in batch:
-            print(f"from {sender}: {payload[:64].hex()}{'...' if len(payload) > 64 else ''}")
-        # Replays on fresh robots: a failure that needs earlier batches' state shows with
-        # the campaign's REUSE window, so replay K-(K % REUSE) .. K if this passes.
-        problem = check(batch)
-        print("verdict:", problem or "ok")
-        return 1 if problem else 0
-    inputs, payloads, failures = run(args.seed, seconds=args.seconds)
-    print(f"payloads: {payloads}")
-    print(f"inputs: {inputs}, failures: {failures}")
-    return 1 if failures else 0
+        return replay(args.replay)
+    stats = campaign(args.seed, seconds=args.seconds)
+    print(f"payloads: {stats.payloads}")
+    # This report has always been just these two lines: the FAILURE lines carry the replay ids.
+    return runner.summary(stats, list_failed=False)
 
 
 if __name__ == "__main__":

@@ -23,19 +23,19 @@ Failures are printed with their replay id. The last line is `inputs: N, failures
 
 from __future__ import annotations
 
-import argparse
-import collections
 import random
 import struct
 import sys
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from bvm import wire
 from bvm.values import Table
+
+from . import runner
 
 #: Work bound: Python lines run per payload byte while decoding (measured: 4.3 at worst).
 LINES_PER_BYTE = 12
@@ -416,15 +416,19 @@ def check_work(payload: bytes) -> str | None:
 
 
 @dataclass
-class Stats:
+class Stats(runner.Stats):
     """What a campaign did."""
 
-    inputs: int = 0
-    failures: int = 0
-    kinds: collections.Counter[str] = field(default_factory=collections.Counter)
     accepted: int = 0
     slowest: float = 0.0
-    failed: list[str] = field(default_factory=list)
+
+    def details(self) -> list[str]:
+        """The kinds of input run, how many decoded, and the slowest check."""
+        return [
+            *super().details(),
+            f"accepted (decoded to a message): {self.accepted}",
+            f"slowest check: {self.slowest * 1000:.1f} ms",
+        ]
 
 
 def run_one(seed: str, k: int, stats: Stats, out: Callable[[str], None]) -> None:
@@ -439,43 +443,18 @@ def run_one(seed: str, k: int, stats: Stats, out: Callable[[str], None]) -> None
     except Exception:  # noqa: BLE001 - a harness error is reported, not fatal
         accepted, spent = False, 0.0
         problem = "harness error: " + traceback.format_exc(limit=-3)
-    stats.inputs += 1
     stats.kinds[kind] += 1
     stats.accepted += accepted
     stats.slowest = max(stats.slowest, spent)
     if problem is None:
         return
-    stats.failures += 1
-    stats.failed.append(f"{seed}:{k}")
-    if stats.failures <= 20:
-        shown = payload.hex() if len(payload) <= 256 else payload[:256].hex() + "..."
-        out(f"FAILURE [replay {seed}:{k}] ({kind}) {problem}\n  payload: {shown}")
+    shown = payload.hex() if len(payload) <= 256 else payload[:256].hex() + "..."
+    text = f"FAILURE [replay {seed}:{k}] ({kind}) {problem}\n  payload: {shown}"
+    stats.fail(f"{seed}:{k}", text, out, shown=20)
 
 
-def run(
-    seed: str,
-    *,
-    seconds: float | None = None,
-    max_inputs: int | None = None,
-    start: int = 0,
-    out: Callable[[str], None] = print,
-) -> Stats:
-    """Check inputs start, start+1, ... of `seed` until the time or the count runs out."""
-    stats = Stats()
-    end = time.monotonic() + seconds if seconds is not None else None
-    k = start
-    last = time.monotonic()
-    while True:
-        if max_inputs is not None and stats.inputs >= max_inputs:
-            break
-        if end is not None and (k - start) % 256 == 0 and time.monotonic() >= end:
-            break
-        run_one(seed, k, stats, out)
-        k += 1
-        if end is not None and (k - start) % 4096 == 0 and time.monotonic() - last > 30:
-            last = time.monotonic()
-            out(f"  ... inputs {stats.inputs}, failures {stats.failures}")
-    return stats
+#: run(seed, *, seconds=None, max_inputs=None, start=0, out=print) -> Stats: a campaign.
+run = runner.make_run(run_one, Stats, clock_every=256, progress=True)
 
 
 def replay(spec: str) -> int:
@@ -497,26 +476,7 @@ def replay(spec: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--seed", default="0")
-    ap.add_argument("--max-inputs", type=int, help="stop after this many inputs")
-    ap.add_argument("--start", type=int, default=0, help="first input index")
-    ap.add_argument("--replay", help="SEED:K -- run one input verbosely")
-    args = ap.parse_args(argv)
-    if args.replay:
-        return replay(args.replay)
-    t0 = time.monotonic()
-    stats = run(args.seed, seconds=args.seconds, max_inputs=args.max_inputs, start=args.start)
-    spent = time.monotonic() - t0
-    print(f"seed {args.seed}, {spent:.0f} s, {stats.inputs / max(spent, 1e-9):.0f} inputs/s")
-    print("kinds:", dict(sorted(stats.kinds.items())))
-    print(f"accepted (decoded to a message): {stats.accepted}")
-    print(f"slowest check: {stats.slowest * 1000:.1f} ms")
-    if stats.failed:
-        print("failed:", " ".join(stats.failed[:50]))
-    print(f"inputs: {stats.inputs}, failures: {stats.failures}")
-    return 1 if stats.failures else 0
+    return runner.main(argv, __doc__, run, replay)
 
 
 if __name__ == "__main__":

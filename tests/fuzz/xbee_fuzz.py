@@ -30,33 +30,21 @@ Failures are printed with their replay id. The last line is `inputs: N, failures
 
 from __future__ import annotations
 
-import argparse
 import collections
-import math
 import random
 import sys
-import time
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import serial
 
 from fieldkit.radio import xbee as X
 from fieldkit.radio import xbeemav as M
 
+from . import runner
+
 TARGETS = ("deframe", "reassemble", "radio")
 INTERESTING = (0x00, 0x01, 0x10, 0x11, 0x13, 0x7D, 0x7E, 0x80, 0x88, 0x8A, 0x8B, 0x90, 0xFE, 0xFF)
-
-
-@dataclass
-class Stats:
-    """What a campaign did."""
-
-    inputs: int = 0
-    failures: int = 0
-    kinds: collections.Counter[str] = field(default_factory=collections.Counter)
-    failed: list[str] = field(default_factory=list)
 
 
 class FakeClock:
@@ -528,30 +516,16 @@ def run_one(seed: str, k: int) -> tuple[str, str | None]:
         return target, "unexpected exception:\n" + traceback.format_exc()
 
 
-def run(
-    seed: str,
-    *,
-    seconds: float = math.inf,
-    max_inputs: int | None = None,
-    start: int = 0,
-    out: Callable[[str], None] = print,
-) -> Stats:
-    """Run inputs start, start+1, ... until the time or input budget is spent."""
-    stats = Stats()
-    deadline = time.monotonic() + seconds
-    k = start
-    while (max_inputs is None or stats.inputs < max_inputs) and (
-        stats.inputs % 64 or time.monotonic() < deadline
-    ):
-        kind, failure = run_one(seed, k)
-        stats.inputs += 1
-        stats.kinds[kind.split("/")[0]] += 1
-        if failure is not None:
-            stats.failures += 1
-            stats.failed.append(f"{seed}:{k}")
-            out(f"FAIL {seed}:{k} ({kind}): {failure}")
-        k += 1
-    return stats
+def record(seed: str, k: int, stats: runner.Stats, out: Callable[[str], None]) -> None:
+    """Run input k and record the outcome."""
+    kind, failure = run_one(seed, k)
+    stats.kinds[kind.split("/")[0]] += 1
+    if failure is not None:
+        stats.fail(f"{seed}:{k}", f"FAIL {seed}:{k} ({kind}): {failure}", out)
+
+
+#: run(seed, *, seconds=None, max_inputs=None, start=0, out=print) -> Stats: a campaign.
+run = runner.make_run(record, runner.Stats, clock_every=64)
 
 
 def replay(spec: str) -> int:
@@ -564,24 +538,7 @@ def replay(spec: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--seed", default="0")
-    ap.add_argument("--max-inputs", type=int, help="stop after this many inputs")
-    ap.add_argument("--start", type=int, default=0, help="first input index")
-    ap.add_argument("--replay", help="SEED:K -- run one input verbosely")
-    args = ap.parse_args(argv)
-    if args.replay:
-        return replay(args.replay)
-    t0 = time.monotonic()
-    stats = run(args.seed, seconds=args.seconds, max_inputs=args.max_inputs, start=args.start)
-    spent = time.monotonic() - t0
-    print(f"seed {args.seed}, {spent:.0f} s, {stats.inputs / max(spent, 1e-9):.0f} inputs/s")
-    print("kinds:", dict(sorted(stats.kinds.items())))
-    if stats.failed:
-        print("failed:", " ".join(stats.failed[:50]))
-    print(f"inputs: {stats.inputs}, failures: {stats.failures}")
-    return 1 if stats.failures else 0
+    return runner.main(argv, __doc__, run, replay)
 
 
 if __name__ == "__main__":
