@@ -183,8 +183,29 @@ def _report(name: str, summary: dict[str, object], out: Path) -> None:
         )
 
 
-_SECONDS_HELP = "Simulated seconds per run (default: the experiment's, see docs/results.md)."
-_SCRIPT_HELP = "Behaviour script instead of the shipped one; its directory is the include path."
+# The options `experiment` and `sweep` share, declared once so their help cannot drift apart.
+# They stay text: `_plan` parses them, so a bad value is an `error:` line rather than usage.
+_RunsOption = Annotated[
+    str | None, typer.Option("--runs", metavar="K", help="Seeded runs per grid cell.")
+]
+_SeedOption = Annotated[
+    str | None, typer.Option("--seed", metavar="S", help="Seed of run 0 (run k: S+k).")
+]
+_SecondsOption = Annotated[
+    str | None,
+    typer.Option(
+        "--seconds",
+        metavar="T",
+        help="Simulated seconds per run (default: the experiment's, see docs/results.md).",
+    ),
+]
+_ScriptOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--script",
+        help="Behaviour script instead of the shipped one; its directory is the include path.",
+    ),
+]
 
 
 @sim_app.command("experiment")
@@ -204,16 +225,10 @@ def experiment_cmd(
     drop: Annotated[
         str | None, typer.Option("--drop", metavar="P", help="Only this drop rate, 0..1.")
     ] = None,
-    runs: Annotated[
-        str | None, typer.Option("--runs", metavar="K", help="Seeded runs per grid cell.")
-    ] = None,
-    seed: Annotated[
-        str | None, typer.Option("--seed", metavar="S", help="Seed of run 0 (run k: S+k).")
-    ] = None,
-    seconds: Annotated[
-        str | None, typer.Option("--seconds", metavar="T", help=_SECONDS_HELP)
-    ] = None,
-    script: Annotated[Path | None, typer.Option("--script", help=_SCRIPT_HELP)] = None,
+    runs: _RunsOption = None,
+    seed: _SeedOption = None,
+    seconds: _SecondsOption = None,
+    script: _ScriptOption = None,
 ) -> None:
     """Run one of the paper's experiments; write summary.json, CSVs and plots into OUT."""
     n = _int_option("--robots", robots)
@@ -250,16 +265,10 @@ def sweep_cmd(
         list[str] | None,
         typer.Option("--drop", metavar="P", help="Only these drop rates (repeatable)."),
     ] = None,
-    runs: Annotated[
-        str | None, typer.Option("--runs", metavar="K", help="Seeded runs per grid cell.")
-    ] = None,
-    seed: Annotated[
-        str | None, typer.Option("--seed", metavar="S", help="Seed of run 0 (run k: S+k).")
-    ] = None,
-    seconds: Annotated[
-        str | None, typer.Option("--seconds", metavar="T", help=_SECONDS_HELP)
-    ] = None,
-    script: Annotated[Path | None, typer.Option("--script", help=_SCRIPT_HELP)] = None,
+    runs: _RunsOption = None,
+    seed: _SeedOption = None,
+    seconds: _SecondsOption = None,
+    script: _ScriptOption = None,
     scheduler: Annotated[
         str | None,
         typer.Option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786)."),
