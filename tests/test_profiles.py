@@ -23,12 +23,15 @@ def shipped_text(name: str) -> str:
     return (PROFILE_DIR / f"{name}.toml").read_text(encoding="utf-8")
 
 
-def variant(tmp_path: Path, base: str, old: str, new: str) -> Path:
-    """A copy of shipped profile `base` with `old` replaced by `new` (which must occur once)."""
+def variant(tmp_path: Path, base: str, old: str, new: str, *more: tuple[str, str]) -> Path:
+    """A copy of shipped profile `base` with `old` replaced by `new`, then each (old, new) of
+    `more` in turn; every `old` must occur exactly once when its turn comes."""
     text = shipped_text(base)
-    assert text.count(old) == 1, f"{old!r} must occur exactly once in {base}.toml"
+    for old_text, new_text in ((old, new), *more):
+        assert text.count(old_text) == 1, f"{old_text!r} must occur exactly once in {base}.toml"
+        text = text.replace(old_text, new_text)
     path = tmp_path / f"{base}-variant.toml"
-    path.write_text(text.replace(old, new), encoding="utf-8")
+    path.write_text(text, encoding="utf-8")
     return path
 
 
@@ -426,36 +429,55 @@ BROKEN = [
 ]
 
 
-@pytest.mark.parametrize(("base", "old", "new", "expected"), BROKEN)
-def test_broken_variants(tmp_path: Path, base: str, old: str, new: str, expected: str) -> None:
-    path = variant(tmp_path, base, old, new)
+# Broken in more than one place, or by more than one edit: every problem is reported, one line
+# each, in the loader's order. (base profile, the (old, new) edits made in turn, the messages.)
+BROKEN_SEVERAL: list[tuple[str, list[tuple[str, str]], list[str]]] = [
+    (
+        "solo",
+        [("[battery]\n", "[batery]\n")],
+        ["batery: unknown field", "battery: missing required table"],
+    ),
+    (
+        "solo",
+        [("[geofence]\n", "[old_geofence]\n")],  # only ground robots may leave it out
+        ["old_geofence: unknown field", "geofence: missing required table"],
+    ),
+    (
+        "solo",
+        [('kind = "xbee"', 'kind = "udp"'), ('source = "hostname"', 'source = "xbee"')],
+        ['robot_id.source: "xbee" needs radio.kind = "xbee", not \'udp\''],
+    ),
+    (
+        "solo",
+        [
+            ("max_speed_mps = 5.0", "max_speed_mps = -1\nwings = 2"),
+            ("api_mode = 2", "api_mode = 0"),
+        ],
+        [
+            "kinematics.wings: unknown field",
+            "kinematics.max_speed_mps: must be > 0, got -1",
+            "radio.api_mode: must be in 1..2, got 0",
+        ],
+    ),
+]
+CASES = [(base, [(old, new)], [expected]) for base, old, new, expected in BROKEN] + BROKEN_SEVERAL
+
+
+@pytest.mark.parametrize(
+    ("base", "edits", "expected"), CASES, ids=[" / ".join(case[2]) for case in CASES]
+)
+def test_broken_variants(
+    tmp_path: Path, base: str, edits: list[tuple[str, str]], expected: list[str]
+) -> None:
+    """Each problem is one `<file>: <dotted field>: <problem>` line, and there is no other."""
+    (old, new), *more = edits
+    path = variant(tmp_path, base, old, new, *more)
     with pytest.raises(ProfileError) as e:
         load_profile(path)
-    assert e.value.problems == (f"{path}: {expected}",)
-    assert str(e.value) == f"{path}: {expected}"
+    want = tuple(f"{path}: {message}" for message in expected)
+    assert e.value.problems == want
+    assert str(e.value) == "\n".join(want)
     assert isinstance(e.value, ValueError)
-
-
-def test_misspelt_table(tmp_path: Path) -> None:
-    path = variant(tmp_path, "solo", "[battery]\n", "[batery]\n")
-    with pytest.raises(ProfileError) as e:
-        load_profile(path)
-    assert e.value.problems == (
-        f"{path}: batery: unknown field",
-        f"{path}: battery: missing required table",
-    )
-
-
-def test_xbee_id_source_needs_an_xbee_radio(tmp_path: Path) -> None:
-    path = variant(tmp_path, "solo", 'kind = "xbee"', 'kind = "udp"')
-    path.write_text(
-        path.read_text().replace('source = "hostname"', 'source = "xbee"'), encoding="utf-8"
-    )
-    with pytest.raises(ProfileError) as e:
-        load_profile(path)
-    assert e.value.problems == (
-        f'{path}: robot_id.source: "xbee" needs radio.kind = "xbee", not \'udp\'',
-    )
 
 
 def test_ground_profile_accepts_explicit_zeros_and_hold(tmp_path: Path) -> None:
@@ -477,25 +499,10 @@ def test_ground_profile_accepts_explicit_zeros_and_hold(tmp_path: Path) -> None:
     assert p.kinematics.takeoff_altitude_m == 0.0
 
 
-def test_ground_geofence_table_is_optional_but_uav_needs_one(tmp_path: Path) -> None:
+def test_ground_geofence_table_is_optional(tmp_path: Path) -> None:
+    # A UAV without one is in BROKEN_SEVERAL.
     husky = variant(tmp_path, "husky", "[geofence]\npolygon = []", "")
     assert load_profile(husky).geofence.polygon == ()
-    solo = variant(tmp_path, "solo", "[geofence]\n", "[old_geofence]\n")
-    with pytest.raises(ProfileError) as e:
-        load_profile(solo)
-    assert f"{solo}: geofence: missing required table" in e.value.problems
-
-
-def test_all_problems_are_reported_together(tmp_path: Path) -> None:
-    path = variant(tmp_path, "solo", "max_speed_mps = 5.0", "max_speed_mps = -1\nwings = 2")
-    path.write_text(path.read_text().replace("api_mode = 2", "api_mode = 0"), encoding="utf-8")
-    with pytest.raises(ProfileError) as e:
-        load_profile(path)
-    assert e.value.problems == (
-        f"{path}: kinematics.wings: unknown field",
-        f"{path}: kinematics.max_speed_mps: must be > 0, got -1",
-        f"{path}: radio.api_mode: must be in 1..2, got 0",
-    )
 
 
 def test_table_of_the_wrong_type(tmp_path: Path) -> None:
