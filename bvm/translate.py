@@ -66,7 +66,6 @@ _MAX_TAILS = 8  # self-calls per function whose continuation is emitted twice
 #: `_Codegen.end_iteration`); tests turn them off to compare.
 SELF_CALLS = True
 CHUNKED_LOOPS = True
-_serial = itertools.count()
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
 
 # Static types of symbolic values. BOOL is a Python bool (a comparison result) that
@@ -287,9 +286,14 @@ class _Codegen:
         slot_types: list[str],
         toplevel: bool,
         selfcall: _SelfCall | None = None,
+        key: str = "",
     ) -> None:
         self.vm = vm
         self.selfcall = selfcall
+        # Names of bound constants are `<prefix><key>_<n>`: the same in every VM that
+        # translates the same function the same way, so they can share the compiled code.
+        self.key = key
+        self._names = itertools.count()
         self.tail_depth = 0  # > 0 inside the copy of a tail that assumes nothing of a result
         self.instrs = instrs
         self.index = {ins.addr: i for i, ins in enumerate(instrs)}
@@ -339,6 +343,10 @@ class _Codegen:
     def push(self, code: str, ty: str = ANY, const: Any = None, rng: Range = None) -> None:
         self.stack.append(_Expr(code, ty, const, rng=rng))
 
+    def fresh(self, prefix: str) -> str:
+        """A new module-global name for a constant this translation binds."""
+        return f"{prefix}{self.key}_{next(self._names)}"
+
     def pop(self) -> _Expr:
         if not self.stack:
             raise NotStructured("stack underflow")
@@ -351,7 +359,7 @@ class _Codegen:
         ty = _KNOWN_CLASS[value.__class__]
         if value.__class__ is float and (math.isinf(value) or value != value or value == 0.0):
             # inf, NaN (keeping its sign bit) and -0.0 have no exact literal: bind the object
-            name = f"_k{next(_serial)}"
+            name = self.fresh("_k")
             self.consts[name] = value
             self.push(name, ty, value)
         else:
@@ -1222,13 +1230,13 @@ class _Codegen:
         impl, arity = self.vm.native_impl(closure.ref)
         if impl is None or (arity is not None and arity != len(args)):
             return False
-        guard = f"_nc{next(_serial)}"
+        guard = self.fresh("_nc")
         self.consts[guard] = closure
         call = f"_ni{closure.ref}"
         self.consts[call] = impl
         owner = "None"
         if closure.actrec[0] is not None:
-            owner = f"_ns{next(_serial)}"
+            owner = self.fresh("_ns")
             self.consts[owner] = closure.actrec[0]
         argv = "".join(f", {self.val(a)}" for a in args)
         cc = c.code
@@ -1348,11 +1356,15 @@ def translate(
         # address, so only the interpreter can start in the middle.
         raise NotStructured("entry is not the function's lowest address")
     if toplevel:
-        return _build(vm, instrs, _generate(vm, instrs, [], True, None), None, 0, 0, None)
+        key = f"{addr}T"
+        return _build(vm, instrs, _generate(vm, instrs, [], True, None, key), None, 0, 0, None)
     spec = speculate or (ANY,) * nargs
+    # What the translation depends on besides the bytecode: names derived from it are the
+    # same in every VM (see _compiled).
+    key = f"{addr}_{n_actrec}_{nargs}{'S' if speculate else 'G'}{''.join(t[0] for t in spec)}"
     slot_types = [ANY] * n_actrec + list(spec)
     failure = NotStructured("no translation")
-    for gen, sc in _function_bodies(vm, instrs, slot_types, n_actrec, spec):
+    for gen, sc in _function_bodies(vm, instrs, slot_types, n_actrec, spec, key):
         try:
             return _build(vm, instrs, gen, sc, n_actrec, nargs, speculate)
         except NotStructured as e:  # CPython refused it: try the next, simpler, candidate
@@ -1371,11 +1383,7 @@ def _build(
 ) -> Callable[..., Any]:
     """Compile a generated function (and its unguarded body, if it calls itself directly)."""
     first = addr = instrs[0].addr
-    serial = next(_serial)
-    name = f"<buzz:{vm.program.path}@{addr}#{serial}>"  # type: ignore[union-attr]
-    # Unique function names: code objects compare by value, not by file name, and
-    # LINE_MAPS holds each under the first equal one, whose death would remove the entry.
-    fname, bname = f"_f{serial}", f"_b{serial}"
+    fname, bname = f"_f{gen.key}", f"_b{gen.key}"
     source: list[str] = []
     offsets = [first]  # line numbers start at 1; index 0 is unused
 
@@ -1420,12 +1428,7 @@ def _build(
         if twice:
             define(f"def {bname}(_C{params}):", unpack, True)
     text = "\n".join(source) + "\n"
-    if os.environ.get("BVM_DUMP_PY"):  # a developer's window into the translator
-        sys.stderr.write(f"# {name}\n{text}\n")
-    try:
-        code = compile(text, name, "exec")
-    except (SyntaxError, RecursionError, MemoryError, ValueError) as e:
-        raise NotStructured(f"generated code did not compile: {e}") from None
+    code = _compiled(text, offsets, f"<buzz:{vm.program.path}@{addr}:{gen.key}")  # type: ignore[union-attr]
     namespace = vm.namespace()
     for key, value in gen.consts.items():
         namespace.setdefault(key, value)
@@ -1440,20 +1443,58 @@ def _build(
     return f
 
 
+#: Compiled generated code by (source, line map): robots running the same script translate
+#: the same functions to the same text, and compiling is most of a translation's cost.
+#: Each VM still runs the code in its own namespace (`exec` below makes its functions).
+_CODE: dict[tuple[str, tuple[int, ...]], CodeType] = {}
+_CODE_MAX = 20_000
+_code_generation = itertools.count()
+_generation = next(_code_generation)
+
+
+def _compiled(text: str, offsets: list[int], name: str) -> CodeType:
+    """The code object of generated module source `text`, compiled once."""
+    global _generation
+    key = (text, tuple(offsets))
+    code = _CODE.get(key)
+    if code is not None:
+        return code
+    if len(_CODE) >= _CODE_MAX:
+        _CODE.clear()
+        # Code objects compare by value and LINE_MAPS holds each under the first equal
+        # one, whose death would remove the entry: a new file name keeps a recompiled
+        # copy unequal to any earlier one that is still alive.
+        _generation = next(_code_generation)
+    if os.environ.get("BVM_DUMP_PY"):  # a developer's window into the translator
+        sys.stderr.write(f"# {name}\n{text}\n")
+    try:
+        code = compile(text, f"{name}#{_generation}>", "exec")
+    except (SyntaxError, RecursionError, MemoryError, ValueError) as e:
+        raise NotStructured(f"generated code did not compile: {e}") from None
+    _CODE[key] = code
+    return code
+
+
 def _generate(
     vm: VM,
     instrs: list[Instruction],
     slot_types: list[str],
     toplevel: bool,
     selfcall: _SelfCall | None,
+    key: str,
 ) -> _Codegen:
-    gen = _Codegen(vm, instrs, slot_types, toplevel, selfcall)
+    gen = _Codegen(vm, instrs, slot_types, toplevel, selfcall, key)
     gen.region(0, len(instrs), None)
     return gen
 
 
 def _function_bodies(
-    vm: VM, instrs: list[Instruction], slot_types: list[str], n_actrec: int, spec: tuple
+    vm: VM,
+    instrs: list[Instruction],
+    slot_types: list[str],
+    n_actrec: int,
+    spec: tuple,
+    key: str,
 ) -> Iterator[tuple[_Codegen, _SelfCall | None]]:
     """A function's candidate codes, best first; each with its self-call record (None when
     it makes no direct self-calls). The last makes none, as before they existed.
@@ -1463,9 +1504,9 @@ def _function_bodies(
     and keep that when every return outside the deoptimized tails then has type T."""
     if SELF_CALLS:
         addr = instrs[0].addr
-        sc = _SelfCall(addr, n_actrec, spec, f"_s{next(_serial)}")
+        sc = _SelfCall(addr, n_actrec, spec, f"_s{key}")
         try:
-            gen = _generate(vm, instrs, slot_types, False, sc)
+            gen = _generate(vm, instrs, slot_types, False, sc, key)
         except NotStructured:
             gen = None
         if gen is not None and not sc.sites:
@@ -1476,7 +1517,7 @@ def _function_bodies(
             if gen.dead and len(known) == 1 and known <= {INT, FLOAT}:
                 typed = _SelfCall(addr, n_actrec, spec, sc.name, known.pop())
                 try:
-                    gen2 = _generate(vm, instrs, slot_types, False, typed)
+                    gen2 = _generate(vm, instrs, slot_types, False, typed, key)
                 except NotStructured:
                     gen2 = None
                 # Sound either way (a return not of the type raises _Deopt; falling off
@@ -1485,7 +1526,7 @@ def _function_bodies(
                 if gen2 is not None and gen2.dead and all(t == typed.ret for t in typed.returns):
                     yield gen2, typed
             yield gen, sc
-    yield _generate(vm, instrs, slot_types, False, None), None
+    yield _generate(vm, instrs, slot_types, False, None, key), None
 
 
 def _redo(rule: Callable[[Any, Any], Any], a: Any, b: Any, result: Any) -> Any:

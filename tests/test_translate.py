@@ -204,7 +204,7 @@ def self_called(source: str, call: str, *args: object) -> bool:
         vm.call(call, *args)
     except bvm.BuzzError:
         pass
-    return any(re.fullmatch(r"_s\d+", name) for name in vm.globals)
+    return any(re.fullmatch(r"_s\d+_\d+_\d+[SG][a-z]*", name) for name in vm.globals)
 
 
 FIB = "function fib(n) {\n  if (n < 2) return n\n  return fib(n - 1) + fib(n - 2)\n}\n"
@@ -472,3 +472,27 @@ def test_error_location_survives_an_equal_translation_being_collected() -> None:
         second.call("f", 1)
     assert info.value.offset is not None
     assert info.value.offset == run(program, False, "f", 1)[1][2]
+
+
+def test_vms_running_one_program_share_compiled_code_not_globals() -> None:
+    """Translations are compiled once per text; each VM runs them on its own globals, and
+    errors still point at the source."""
+    src = "function f(x) {\n  total = total + x\n  return total / x\n}\n"
+    program = bvm.compile_source(src, "shared.bzz")
+    vms = []
+    for start in (1, 100):
+        vm = bvm.VM()
+        vm.load(program)
+        vm.execute()
+        vm["total"] = start
+        vms.append(vm)
+    assert [vm.call("f", 2) for vm in vms] == [1, 51]  # (1 + 2) / 2 and (100 + 2) / 2
+    fa, fb = (vm.gload("f") for vm in vms)
+    code_a = vms[0].entry(fa.ref, 1).for_call((2,)).__code__
+    code_b = vms[1].entry(fb.ref, 1).for_call((2,)).__code__
+    assert code_a is code_b
+    vms[1]["total"] = "oops"
+    # Where the reference (and the interpreter) puts it: the end of the statement.
+    with pytest.raises(bvm.BuzzError, match=r"shared\.bzz:3:2: type mismatch"):
+        vms[1].call("f", 2)
+    assert vms[0].call("f", 2) == 2  # (3 + 2) / 2: untouched by the other VM's error
