@@ -23,27 +23,68 @@ from bvm import wire
 from bvm.errors import BuzzError
 from bvm.inbox import Inbox
 from bvm.outbox import Outbox
+from bvm.values import Table
 
 _log = logging.getLogger("bvm.net")
 
 _Vm = Any
 
-# Decoded messages holding no table or closure are immutable, so robots that receive the
-# same bytes (a broadcast heard by every neighbour, in the simulator or on a shared host)
-# can share one decoding. Bounded: cleared when full.
-_shared: dict[bytes, wire.Message] = {}
+# Robots that receive the same bytes (a broadcast heard by every neighbour, in the
+# simulator or on a shared host) share one decoding: payload -> (message, whether it holds
+# tables). Tables are mutable, so each VM gets its own copy of them (copying a small table
+# costs a fraction of decoding it); closures belong to one VM, so messages holding one are
+# decoded by every VM. Bounded: cleared when full.
+_shared: dict[bytes, tuple[wire.Message, bool]] = {}
 _SHARED_MAX = 8192
 _SCALARS = (int, float, str, type(None))
 
 
-def _immutable(msg: wire.Message) -> bool:
-    """Whether a decoded message holds only immutable values (no table, no closure)."""
+def _sharing(msg: wire.Message) -> bool | None:
+    """None if the message cannot be shared (it holds a closure); else whether it holds
+    tables (then each VM must copy them)."""
     kind = msg.type
     if kind == wire.MsgType.BROADCAST:
-        return msg.value.__class__ in _SCALARS  # type: ignore[attr-defined]
-    if kind in (wire.MsgType.VSTIG_PUT, wire.MsgType.VSTIG_QUERY):
-        return msg.value.__class__ in _SCALARS and msg.key.__class__ in _SCALARS  # type: ignore[attr-defined]
+        values: tuple[Any, ...] = (msg.value,)  # type: ignore[attr-defined]
+    elif kind in (wire.MsgType.VSTIG_PUT, wire.MsgType.VSTIG_QUERY):
+        values = (msg.key, msg.value)  # type: ignore[attr-defined]
+    else:
+        return False
+    tables = False
+    for v in values:
+        if v.__class__ in _SCALARS:
+            continue
+        if v.__class__ is not Table or not _plain(v):
+            return None
+        tables = True
+    return tables
+
+
+def _plain(t: Table) -> bool:
+    """Whether a table holds only scalars and plain tables (decoded values are trees)."""
+    for v in t.values():
+        if v.__class__ not in _SCALARS and (v.__class__ is not Table or not _plain(v)):
+            return False
     return True
+
+
+def _copy(v: Any) -> Any:
+    """A deep copy of a plain decoded value."""
+    if v.__class__ is not Table:
+        return v
+    return Table({k: _copy(x) if x.__class__ is Table else x for k, x in v.items()})
+
+
+def _private(msg: wire.Message) -> wire.Message:
+    """The shared message with tables of this VM's own."""
+    if msg.type == wire.MsgType.BROADCAST:
+        return wire.Broadcast(msg.topic, _copy(msg.value))  # type: ignore[attr-defined]
+    return msg.__class__(  # type: ignore[call-arg]
+        msg.vstig,  # type: ignore[attr-defined]
+        _copy(msg.key),  # type: ignore[attr-defined]
+        _copy(msg.value),  # type: ignore[attr-defined]
+        msg.timestamp,  # type: ignore[attr-defined]
+        msg.robot,  # type: ignore[attr-defined]
+    )
 
 
 class Network:
@@ -73,17 +114,23 @@ class Network:
         """Apply every queued payload, in the reference's order, then age swarm records."""
         vm = self.vm
         for sender, payload in self.inbox.drain():
-            msg = _shared.get(payload)
-            if msg is None:
+            hit = _shared.get(payload)
+            if hit is not None:
+                msg = _private(hit[0]) if hit[1] else hit[0]
+            else:
                 try:
                     msg = wire.decode(payload, closure=self._closure)
                 except wire.DecodeError as e:
                     self._dropped(sender, e)
                     continue
-                if _immutable(msg):
+                tables = _sharing(msg)
+                if tables is not None:
                     if len(_shared) >= _SHARED_MAX:
                         _shared.clear()
-                    _shared[payload] = msg
+                    # The first decoding stays pristine; this VM works on a copy.
+                    _shared[payload] = (msg, tables)
+                    if tables:
+                        msg = _private(msg)
             self.stats["received"] += 1
             kind = msg.type
             if kind == wire.MsgType.BROADCAST:

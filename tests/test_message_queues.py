@@ -190,18 +190,29 @@ def test_unsendable_values_are_a_runtime_error(expr: str, words: str) -> None:
         make_robot(src)
 
 
-def test_robots_share_decodings_only_of_immutable_messages() -> None:
-    # A table value must not be shared: one robot's listener could change it.
-    src = "neighbors.listen('t', function(topic, v, s) { v.mine = id  got = v })"
-    a, _ = make_robot(src, robot_id=1)
-    b, _ = make_robot(src, robot_id=2)
-    payload = wire.encode(wire.Broadcast("t", bvm.Table(x=1)))
-    for vm in (a, b):
+def test_robots_share_decodings_but_each_owns_its_tables() -> None:
+    # A table value is decoded once, but each robot gets its own copy: one robot's listener
+    # changing it must not be seen by the others, nor by the shared decoding.
+    src = "neighbors.listen('t', function(topic, v, s) { v.mine = id  v.in.n = id  got = v })"
+    robots = [make_robot(src, robot_id=rid)[0] for rid in (1, 2, 3)]
+    payload = wire.encode(wire.Broadcast("t", bvm.Table(x=1, **{"in": bvm.Table(n=0)})))
+    for vm in robots:
         vm.receive(9, payload)
         vm.process_inbox()
-    assert a["got"] == {"x": 1, "mine": 1} and b["got"] == {"x": 1, "mine": 2}
-    assert payload not in network._shared
+    for rid, vm in enumerate(robots, 1):
+        assert vm["got"]["x"] == 1 and vm["got"]["mine"] == rid and vm["got"]["in"]["n"] == rid
+    shared, tables = network._shared[payload]
+    assert tables and dict(shared.value["in"]) == {"n": 0} and "mine" not in shared.value
     scalar = wire.encode(wire.VstigPut(1, "k", 5, 1, 9))
-    a.receive(9, scalar)
-    a.process_inbox()
-    assert network._shared.get(scalar) == wire.VstigPut(1, "k", 5, 1, 9)
+    robots[0].receive(9, scalar)
+    robots[0].process_inbox()
+    assert network._shared.get(scalar) == (wire.VstigPut(1, "k", 5, 1, 9), False)
+
+
+def test_messages_holding_closures_are_never_shared() -> None:
+    # A received closure is resolved against the receiving VM's own functions.
+    c = bvm.values.Closure(3, True, (None,), None)
+    assert network._sharing(wire.Broadcast("t", c)) is None
+    assert network._sharing(wire.VstigPut(1, "k", bvm.Table(f=c), 1, 9)) is None
+    assert network._sharing(wire.VstigPut(1, "k", bvm.Table(f=1.5), 1, 9)) is True
+    assert network._sharing(wire.SwarmList((1, 2))) is False
