@@ -251,6 +251,10 @@ def test_round_trips(b: B.Bundle) -> None:
     assert len(air) == B.air_size(b.messages) <= B.MAX_AIR_BYTES
     assert B.decode(air) == b
     assert B.from_rf_data(B.to_rf_data(b)) == b
+    # The air bytes are the payload64 words, big-endian, however they are produced.
+    words = B.to_payload64(b)
+    assert air == struct.pack(f">{len(words)}Q", *words)
+    assert air == B.encode_fields(b.robot, b.messages, b.lat, b.lon, b.alt, b.number, b.time_ns)
     # Doubles travel as bit patterns: -0.0 stays -0.0.
     assert math.copysign(1.0, B.decode(air).lat) == math.copysign(1.0, b.lat)
 
