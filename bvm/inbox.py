@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import collections
 import logging
-from collections.abc import Iterator
 
 _log = logging.getLogger("bvm.net")
 
@@ -44,16 +43,20 @@ class Inbox:
             if self.stats["inbox_overflow"] == 1:
                 _log.warning("in-queue full (%d payloads): dropping", self.max_pending)
             return False
-        self._by_sender.setdefault(sender, []).append(payload)
+        queue = self._by_sender.get(sender)
+        if queue is None:
+            self._by_sender[sender] = [payload]
+        else:
+            queue.append(payload)
         self._count += 1
         return True
 
-    def drain(self) -> Iterator[tuple[int, bytes]]:
-        """Yield and remove every pending (sender, payload), in the reference's order."""
-        senders = sorted(self._by_sender, key=lambda s: s % BUCKETS)  # stable: arrival order
+    def drain(self) -> list[tuple[int, bytes]]:
+        """Remove and return every pending (sender, payload), in the reference's order."""
         by_sender = self._by_sender
+        if not by_sender:
+            return []
+        senders = sorted(by_sender, key=lambda s: s % BUCKETS)  # stable: arrival order
         self._by_sender = {}
         self._count = 0
-        for sender in senders:
-            for payload in reversed(by_sender[sender]):
-                yield sender, payload
+        return [(sender, payload) for sender in senders for payload in reversed(by_sender[sender])]

@@ -23,7 +23,7 @@ from bvm import wire
 from bvm.errors import BuzzError
 from bvm.inbox import Inbox
 from bvm.outbox import Outbox
-from bvm.values import Table
+from bvm.values import Table, copy_tree
 
 _log = logging.getLogger("bvm.net")
 
@@ -67,21 +67,14 @@ def _plain(t: Table) -> bool:
     return True
 
 
-def _copy(v: Any) -> Any:
-    """A deep copy of a plain decoded value."""
-    if v.__class__ is not Table:
-        return v
-    return Table({k: _copy(x) if x.__class__ is Table else x for k, x in v.items()})
-
-
 def _private(msg: wire.Message) -> wire.Message:
     """The shared message with tables of this VM's own."""
     if msg.type == wire.MsgType.BROADCAST:
-        return wire.Broadcast(msg.topic, _copy(msg.value))  # type: ignore[attr-defined]
+        return wire.Broadcast(msg.topic, copy_tree(msg.value))  # type: ignore[attr-defined]
     return msg.__class__(  # type: ignore[call-arg]
         msg.vstig,  # type: ignore[attr-defined]
-        _copy(msg.key),  # type: ignore[attr-defined]
-        _copy(msg.value),  # type: ignore[attr-defined]
+        copy_tree(msg.key),  # type: ignore[attr-defined]
+        copy_tree(msg.value),  # type: ignore[attr-defined]
         msg.timestamp,  # type: ignore[attr-defined]
         msg.robot,  # type: ignore[attr-defined]
     )
@@ -113,40 +106,53 @@ class Network:
     def process_inbox(self) -> None:
         """Apply every queued payload, in the reference's order, then age swarm records."""
         vm = self.vm
-        for sender, payload in self.inbox.drain():
-            hit = _shared.get(payload)
-            if hit is not None:
-                msg = _private(hit[0]) if hit[1] else hit[0]
-            else:
-                try:
-                    msg = wire.decode(payload, closure=self._closure)
-                except wire.DecodeError as e:
-                    self._dropped(sender, e)
-                    continue
-                tables = _sharing(msg)
-                if tables is not None:
-                    if len(_shared) >= _SHARED_MAX:
-                        _shared.clear()
-                    # The first decoding stays pristine; this VM works on a copy.
-                    _shared[payload] = (msg, tables)
-                    if tables:
+        stigmergies, swarms = vm.stigmergies, vm.swarms
+        on_put, on_query, deliver = stigmergies.on_put, stigmergies.on_query, vm.neighbors.deliver
+        shared = _shared
+        received = 0
+        try:
+            for sender, payload in self.inbox.drain():
+                hit = shared.get(payload)
+                if hit is not None:
+                    msg, tables = hit
+                    # Stigmergy copies a shared value only if it keeps it (it usually has
+                    # that version already); a listener always gets its own.
+                    if tables and (msg.type == 0 or msg.key.__class__ is Table):  # type: ignore[attr-defined]
                         msg = _private(msg)
-            self.stats["received"] += 1
-            kind = msg.type
-            if kind == wire.MsgType.BROADCAST:
-                vm.neighbors.deliver(msg.topic, msg.value, sender)
-            elif kind == wire.MsgType.VSTIG_PUT:
-                vm.stigmergies.on_put(msg)
-            elif kind == wire.MsgType.VSTIG_QUERY:
-                vm.stigmergies.on_query(msg, payload)
-            elif kind == wire.MsgType.SWARM_LIST:
-                vm.swarms.on_list(sender, msg.ids)
-            elif kind == wire.MsgType.SWARM_JOIN:
-                vm.swarms.on_join(sender, msg.swarm)
-            else:
-                vm.swarms.on_leave(sender, msg.swarm)
-        vm.swarms.age()
-        vm.stigmergies.end_step()
+                        tables = False
+                else:
+                    try:
+                        msg = wire.decode(payload, closure=self._closure)
+                    except wire.DecodeError as e:
+                        self._dropped(sender, e)
+                        continue
+                    tables = _sharing(msg)
+                    if tables is not None:
+                        if len(shared) >= _SHARED_MAX:
+                            shared.clear()
+                        # This VM keeps its decoding; the others share a pristine copy.
+                        shared[payload] = (_private(msg) if tables else msg, tables)
+                    tables = False
+                received += 1
+                # MsgType is an IntEnum: compare plain ints, most frequent kinds first.
+                kind = msg.type
+                if kind == 3:  # VSTIG_QUERY
+                    on_query(msg, payload, tables)
+                elif kind == 2:  # VSTIG_PUT
+                    on_put(msg, tables)
+                elif kind == 0:  # BROADCAST
+                    deliver(msg.topic, msg.value, sender)  # type: ignore[attr-defined]
+                elif kind == 1:  # SWARM_LIST
+                    swarms.on_list(sender, msg.ids)  # type: ignore[attr-defined]
+                elif kind == 4:  # SWARM_JOIN
+                    swarms.on_join(sender, msg.swarm)  # type: ignore[attr-defined]
+                else:
+                    swarms.on_leave(sender, msg.swarm)  # type: ignore[attr-defined]
+        finally:
+            # Counted even when a listener's error ends the step early.
+            self.stats["received"] += received
+        swarms.age()
+        stigmergies.end_step()
 
     def _dropped(self, sender: int, e: wire.DecodeError) -> None:
         self.stats["decode_errors"] += 1

@@ -206,6 +206,14 @@ def to_buzz(x: Any) -> Any:
     return Userdata(x)
 
 
+def copy_tree(v: Any) -> Any:
+    """A deep copy of a value whose tables form a tree (decoded values do): new tables,
+    the same scalars and closures."""
+    if v.__class__ is not Table:
+        return v
+    return Table({k: copy_tree(x) if x.__class__ is Table else x for k, x in v.items()})
+
+
 def to_python(x: Any, _memo: dict[int, dict] | None = None) -> Any:
     """Convert a Buzz value to plain Python: tables become dicts (recursively, keeping the
     shape of cyclic tables), userdata unwraps."""

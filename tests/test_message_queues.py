@@ -216,3 +216,17 @@ def test_messages_holding_closures_are_never_shared() -> None:
     assert network._sharing(wire.VstigPut(1, "k", bvm.Table(f=c), 1, 9)) is None
     assert network._sharing(wire.VstigPut(1, "k", bvm.Table(f=1.5), 1, 9)) is True
     assert network._sharing(wire.SwarmList((1, 2))) is False
+
+
+def test_a_shared_stigmergy_value_is_copied_by_each_robot_that_keeps_it() -> None:
+    src = "v = stigmergy.create(1)"
+    robots = [make_robot(src, robot_id=rid)[0] for rid in (1, 2)]
+    payload = wire.encode(wire.VstigPut(1, "k", bvm.Table(pos=bvm.Table(x=1)), 1, 9))
+    for vm in robots:
+        vm.receive(9, payload)
+        vm.process_inbox()
+    a, b = (vm.stigmergies.stores[1].entries["k"].data for vm in robots)
+    assert a is not b and a["pos"] is not b["pos"]
+    a["pos"]["x"] = 5  # one robot's script changing what it got
+    assert b["pos"]["x"] == 1
+    assert network._shared[payload][0].value["pos"]["x"] == 1

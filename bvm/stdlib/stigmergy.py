@@ -23,7 +23,7 @@ from typing import Any
 from bvm import wire
 from bvm.errors import BuzzError
 from bvm.stdlib.base import expected
-from bvm.values import Closure, Table, f2i, type_name
+from bvm.values import Closure, Table, copy_tree, f2i, type_name
 
 _log = logging.getLogger("bvm.net")
 
@@ -116,33 +116,38 @@ class Stigmergies:
 
     # ------------------------------------------------------------ receiving
 
-    def on_put(self, msg: wire.VstigPut) -> None:
-        """A received PUT (spec wire §5.2)."""
+    def on_put(self, msg: wire.VstigPut, shared: bool = False) -> None:
+        """A received PUT (spec wire §5.2). `shared`: its tables are other robots' too, so
+        a value kept here is copied first."""
         vs = self.stores.get(msg.vstig)
         if vs is None:
             return  # not created here: dropped, not propagated (as the reference)
-        remote = Element(msg.value, msg.timestamp, msg.robot)
         local = vs.entries.get(msg.key)
-        if local is None or local.timestamp < remote.timestamp:
+        ts = msg.timestamp
+        if local is None or local.timestamp < ts:
+            remote = Element(copy_tree(msg.value) if shared else msg.value, ts, msg.robot)
             self._store(vs, msg.key, remote)
             self._send(wire.VstigPut, vs.id, msg.key, remote)
-        elif local.timestamp == remote.timestamp and local.robot != remote.robot:
+        elif local.timestamp == ts and local.robot != msg.robot:
+            remote = Element(copy_tree(msg.value) if shared else msg.value, ts, msg.robot)
             self._conflict(vs, msg.key, local, remote)
 
-    def on_query(self, msg: wire.VstigQuery, payload: bytes) -> None:
-        """A received QUERY (spec wire §5.3)."""
+    def on_query(self, msg: wire.VstigQuery, payload: bytes, shared: bool = False) -> None:
+        """A received QUERY (spec wire §5.3); `shared` as for on_put."""
         vs = self.stores.get(msg.vstig)
         local = vs.entries.get(msg.key) if vs is not None else None
         if vs is None or (local is None and msg.value is None):
             self._forward(msg, payload)
             return
-        remote = Element(msg.value, msg.timestamp, msg.robot)
-        if local is None or local.timestamp < remote.timestamp:
+        ts = msg.timestamp
+        if local is None or local.timestamp < ts:
+            remote = Element(copy_tree(msg.value) if shared else msg.value, ts, msg.robot)
             self._store(vs, msg.key, remote)
             self._send(wire.VstigPut, vs.id, msg.key, remote)
-        elif local.timestamp > remote.timestamp:
+        elif local.timestamp > ts:
             self._send(wire.VstigPut, vs.id, msg.key, local)  # the reply
-        elif local.robot != remote.robot:
+        elif local.robot != msg.robot:
+            remote = Element(copy_tree(msg.value) if shared else msg.value, ts, msg.robot)
             self._conflict(vs, msg.key, local, remote)
 
     def _forward(self, msg: wire.VstigQuery, payload: bytes) -> None:
