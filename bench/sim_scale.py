@@ -10,8 +10,10 @@ time (process time: this process, one core) of `--measure` simulated seconds. It
 ticks per second at each size and the largest real-time size, interpolated between the two
 sizes that bracket 10 ticks/s (or the largest size measured, if all are real time).
 
-Robots start on a grid 8 m apart with a 20 m radio range (about 8-12 neighbours each), the
-density of a coverage deployment; the radio drops nothing (losses make less traffic).
+Robots start on a grid at the density of the deployment (one per 150 m², 12.2 m apart) with
+a 20 m radio range, so each hears about 8 others, as in the deployed swarm; the radio drops
+nothing (losses make less traffic). The measured seconds follow the command's barrier, while
+robots still repeat the command to latecomers: the busiest part of a deployment.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from fieldkit.sim.simulator import DEFAULT_ORIGIN, TICK_S, RcCommand, SimConfig,
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = ROOT / "buzz_scripts" / "coverage.bzz"
 AREA_PER_ROBOT_M2 = 150.0
-SPACING_M = 8.0
+SPACING_M = math.sqrt(AREA_PER_ROBOT_M2)  # start at the deployed density
 RANGE_M = 20.0
 DEPLOY_AT_S = 8.0  # after takeoff and the hotspots
 

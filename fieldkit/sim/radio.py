@@ -26,14 +26,14 @@ Two interfaces share the model:
 * `transmit(step, sender, payloads, positions)` / `arrivals(step)`, the per-message
   interface of `fieldkit.sim.harness`.
 
-Speed, for thousands of robots: the hearers of a sender come from a uniform grid over x and
-y with cells one range wide, rebuilt once per tick, so each sender checks the distance to
-the robots of 9 cells instead of all N; deliveries are plain tuples, queued in per-tick
-buckets. Reproducibility: every random draw comes from one `random.Random(seed)`, in a fixed
-order (the order of the broadcast/transmit calls; within a broadcast, the loss draws of
-the receivers by id, then the jitter draws of the survivors; within a transmit, per payload
-and receiver the loss draws then the jitter draw), so a run is bit for bit reproducible from
-its seed provided the caller sends in a fixed order (e.g. by robot id).
+Speed, for thousands of robots: the hearers of every sender come from one query of a k-d
+tree (scipy's cKDTree) built once per tick, so each sender checks the distance to about its
+own neighbours instead of all N; deliveries are plain tuples, queued in per-tick buckets.
+Reproducibility: every random draw comes from one `random.Random(seed)`, in a fixed order
+(the order of the broadcast/transmit calls; within a broadcast, the loss draws of the
+receivers by id, then the jitter draws of the survivors; within a transmit, per payload and
+receiver the loss draws then the jitter draw), so a run is bit for bit reproducible from its
+seed provided the caller sends in a fixed order (e.g. by robot id).
 """
 
 from __future__ import annotations
@@ -46,13 +46,13 @@ from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
+from scipy.spatial import cKDTree
+
 Position = tuple[float, float, float]  # metres in a local frame: x east, y north, z up
 #: One delivery: (receiver, sender, data, the sender's position when it sent).
 Delivery = tuple[int, int, bytes, Position]
 
-# The grid cell is a hair wider than the range so that float rounding in x / cell can never
-# put two robots within range more than one cell apart.
-_CELL_MARGIN = 1.0 + 1e-9
+_CANDIDATE_MARGIN = 1.0 + 1e-9
 
 
 @dataclass(frozen=True)
@@ -195,11 +195,10 @@ class Radio:
         self.dropped = 0  # receptions lost on their link
         self.distance_checks = 0  # distances computed to find hearers (the grid's work)
         self.bytes_sent: dict[int, int] = {}  # robot -> bytes put on the air, all steps
-        self._cell = model.range_m * _CELL_MARGIN if math.isfinite(model.range_m) else 0.0
         self._positions: dict[int, Position] = {}
         self._everyone: list[tuple[int, Position]] = []  # (id, position) by id
-        self._grid: dict[tuple[int, int], list[tuple[int, Position]]] = {}  # cell -> robots
-        self._near: dict[tuple[int, int], list[tuple[int, Position]]] = {}  # cell -> 3x3
+        self._tree: cKDTree | None = None
+        self._heard_by: dict[int, list[int]] | None = None  # robot -> candidate indices
         self._grid_source: tuple[int, int] | None = None  # (id(positions), step) of transmit
         self._buckets: dict[int, list[Delivery]] = {}  # due step -> deliveries, in send order
         self._due: list[int] = []  # heap of the keys of _buckets
@@ -215,61 +214,67 @@ class Radio:
         return distance(a, b) <= self.model.range_m
 
     def set_positions(self, positions: Mapping[int, Position]) -> None:
-        """Where every robot is this tick; rebuilds the spatial grid (call once per tick)."""
+        """Where every robot is this tick (call once per tick, before the broadcasts)."""
         self._positions = dict(positions)
         self._everyone = sorted(self._positions.items())
+        isfinite = math.isfinite
+        for rid, p in self._everyone:
+            if not (isfinite(p[0]) and isfinite(p[1]) and isfinite(p[2])):
+                raise ValueError(f"robot {rid} has a non-finite position {p}")
         self._grid_source = None
-        self._near = {}
-        grid: dict[tuple[int, int], list[tuple[int, Position]]] = {}
-        cell = self._cell
-        if cell:
-            floor = math.floor
-            isfinite = math.isfinite
-            for item in self._everyone:
-                p = item[1]
-                x, y = p[0], p[1]
-                if not (isfinite(x) and isfinite(y)):
-                    raise ValueError(f"robot {item[0]} has a non-finite position {p}")
-                key = (floor(x / cell), floor(y / cell))
-                members = grid.get(key)
-                if members is None:
-                    grid[key] = [item]
-                else:
-                    members.append(item)
-        self._grid = grid
+        self._tree = None  # built on the first question of the tick
+        self._heard_by = None
+
+    def _candidates(self) -> cKDTree | None:
+        """The k-d tree of this tick's positions (None when the range is unbounded)."""
+        if self._tree is None and self._everyone and math.isfinite(self.model.range_m):
+            self._tree = cKDTree([p for _, p in self._everyone])
+        return self._tree
+
+    def _within(self, position: Position, exclude: int | None, near: Iterable[int]) -> list[int]:
+        """The robots of `near` (indices into the id-sorted list, ascending) within range of
+        `position`, by id; the exact test decides, the tree only narrows the candidates."""
+        everyone = self._everyone
+        r = self.model.range_m
+        dist = math.dist
+        out = []
+        checks = 0
+        for j in near:
+            rid, p = everyone[j]
+            checks += 1
+            if rid != exclude and dist(position, p) <= r:
+                out.append(rid)
+        self.distance_checks += checks
+        return out
 
     def hearers(self, position: Position, exclude: int | None = None) -> list[int]:
         """The robots (by id, ascending) within range of `position` at the last set_positions."""
-        r = self.model.range_m
-        dist = math.dist
-        cell = self._cell
-        if cell:
-            key = (math.floor(position[0] / cell), math.floor(position[1] / cell))
-            near = self._near.get(key)
-            if near is None:
-                near = self._near[key] = self._around(key)
-        else:
-            near = self._everyone
-        self.distance_checks += len(near)
-        # `near` is sorted by id, so the result is too.
-        return [i for i, p in near if i != exclude and dist(position, p) <= r]
-
-    def _around(self, key: tuple[int, int]) -> list[tuple[int, Position]]:
-        """(id, position) of the robots in the 3 x 3 cells centred on `key`, by id."""
-        grid = self._grid
-        cx, cy = key
-        near: list[tuple[int, Position]] = []
-        for gx in (cx - 1, cx, cx + 1):
-            for gy in (cy - 1, cy, cy + 1):
-                members = grid.get((gx, gy))
-                if members:
-                    near += members
+        tree = self._candidates()
+        if tree is None:
+            return self._within(position, exclude, range(len(self._everyone)))
+        # A hair wider than the range, so float rounding in the tree's squared distances
+        # cannot lose a robot that the exact test keeps.
+        near = tree.query_ball_point(position, self.model.range_m * _CANDIDATE_MARGIN)
         near.sort()
-        return near
+        return self._within(position, exclude, near)
+
+    def _hearers_of(self, robot: int) -> list[int]:
+        """hearers(position of `robot`, robot), for every robot of the tick in one query."""
+        if self._heard_by is None:
+            tree = self._candidates()
+            if tree is None:
+                return self.hearers(self._positions[robot], robot)
+            found = tree.query_ball_point(
+                tree.data, self.model.range_m * _CANDIDATE_MARGIN, return_sorted=True
+            )
+            self._heard_by = {
+                rid: near for (rid, _), near in zip(self._everyone, found, strict=True)
+            }
+        return self._within(self._positions[robot], robot, self._heard_by[robot])
 
     def neighbors(self, robot: int) -> list[int]:
         """The robots `robot` can hear at its position of the last set_positions, by id."""
-        return self.hearers(self._positions[robot], robot)
+        return self._hearers_of(robot)
 
     # ------------------------------------------------------------------ losses
 
@@ -375,11 +380,13 @@ class Radio:
         if not self._everyone:
             # Without positions nobody would hear anything: a silent trap, so refuse.
             raise RuntimeError("call set_positions() before broadcast()")
-        if position is None:
-            position = self._positions[sender]
         self._account(step, sender, len(data))
         self.sent += 1
-        hearers = self.hearers(position, sender)
+        if position is None:
+            position = self._positions[sender]
+            hearers = self._hearers_of(sender)
+        else:
+            hearers = self.hearers(position, sender)
         model = self.model
         kept = (
             self._survivors(step, sender, hearers)
