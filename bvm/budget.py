@@ -97,6 +97,13 @@ class Budget:
     def start(self) -> None:
         """Begin an entry: a fresh allowance of iterations and, if set, of seconds."""
         self.used = 0
+        if self.max_seconds is None and self._timer is None:
+            # No timer thread exists to race with: the flags need no lock (the common,
+            # per-step case of a simulator with thousands of robots).
+            self._timed_out = False
+            self._generation += 1
+            self._active = True
+            return
         with self._lock:
             self._timed_out = False
             self._generation += 1
@@ -111,6 +118,10 @@ class Budget:
 
     def stop(self) -> None:
         """End an entry; a timeout that fired but was not yet delivered is withdrawn."""
+        if self._timer is None and not self._timed_out and self.max_seconds is None:
+            self._generation += 1
+            self._active = False
+            return
         with self._lock:
             self._generation += 1
             self._active = False

@@ -19,6 +19,7 @@ the `Command`s the script queued, for the host to actuate.
 from __future__ import annotations
 
 import random
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -142,19 +143,16 @@ class ScriptAPI:
             self.cur_goal = (s.lat, s.lon, s.alt)
         g = self.vm.globals
         # Buzz floats are binary32: GPS degrees lose about a metre here, as in ROSBuzz.
+        # One C-level conversion rounds them all (this runs for every robot every tick).
+        lat, lon, alt, north, east, yaw, volt, amps, glat, glon, galt = array(
+            "f",
+            (s.lat, s.lon, s.alt, s.north, s.east, s.yaw, s.voltage, s.current, *self.cur_goal),
+        )
         g["pose"] = Table(
-            position=Table(
-                latitude=f32(s.lat),
-                longitude=f32(s.lon),
-                altitude=f32(s.alt),
-                x=f32(s.north),
-                y=f32(s.east),
-            ),
-            orientation=Table(yaw=f32(s.yaw)),
+            position=Table(latitude=lat, longitude=lon, altitude=alt, x=north, y=east),
+            orientation=Table(yaw=yaw),
         )
-        g["battery"] = Table(
-            voltage=f32(s.voltage), current=f32(s.current), capacity=int(s.battery_percent)
-        )
+        g["battery"] = Table(voltage=volt, current=amps, capacity=int(s.battery_percent))
         g["flight"] = Table(status=s.status, rc_cmd=s.rc_cmd)
         if s.rc_goto is not None:
             rid, lat, lon, alt = s.rc_goto
@@ -163,8 +161,7 @@ class ScriptAPI:
             )
         elif "rc_goto" not in g:
             g["rc_goto"] = Table(id=-1, latitude=0.0, longitude=0.0, altitude=0.0)
-        lat, lon, alt = self.cur_goal
-        g["cur_goal"] = Table(latitude=f32(lat), longitude=f32(lon), altitude=f32(alt))
+        g["cur_goal"] = Table(latitude=glat, longitude=glon, altitude=galt)
         self.vm.set_neighbors(neighbors)
 
     def after_step(self) -> list[Command]:
@@ -286,11 +283,11 @@ class ScriptAPI:
             region = voronoi.convex_hull(boundary)
         if len(region) < 3:
             return None
-        if not polygon.inside((0.0, 0.0), region):
+        if not voronoi.inside_hull(region, (0.0, 0.0)):
             goal = voronoi.random_point_in(region, self.rng)
             self._relative_goal(*goal)
             return None
-        cell = voronoi.bounded_cell(0, sites, region)
+        cell = voronoi.hull_cell(0, sites, region)
         center = voronoi.centroid(cell) if len(cell) >= 3 else None
         if center is None:
             return None

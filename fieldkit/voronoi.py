@@ -179,6 +179,13 @@ def bounded_cell(
         cell = [(float(x), float(y)) for x, y in boundary_polygon]  # a hull already
     else:
         cell = convex_hull(boundary_polygon)
+    return hull_cell(site_index, sites, cell)
+
+
+def hull_cell(site_index: int, sites: Sequence[Sequence[float]], hull: list[Point]) -> list[Point]:
+    """`bounded_cell` for a boundary known to be strictly convex and counter-clockwise
+    (`is_convex_ccw`), such as a hull: the voronoi closure checks that once per call."""
+    cell = hull
     if len(cell) < 3 or abs(area(cell)) < AREA_EPS:
         return []
     # Plain floats, not numpy: a robot has about ten neighbours, and numpy's per-call
@@ -209,6 +216,18 @@ def bounded_cell(
             return []
     cell = _tidy(cell)
     return cell if len(cell) >= 3 and abs(area(cell)) >= AREA_EPS else []
+
+
+def inside_hull(hull: Sequence[Point], p: Point, tol: float = 1e-9) -> bool:
+    """Whether p is in the strictly convex counter-clockwise polygon, its edges included."""
+    px, py = p
+    x0, y0 = hull[-1]
+    for x1, y1 in hull:
+        ex, ey = x1 - x0, y1 - y0
+        if ex * (py - y0) - ey * (px - x0) < -tol * max(1.0, abs(ex) + abs(ey)):
+            return False
+        x0, y0 = x1, y1
+    return True
 
 
 def _strictly_inside(polygon: list[Point], p: Point, margin: float = 1e-6) -> bool:

@@ -198,3 +198,15 @@ def test_qhull_cell_matches_scipy_halfspace_intersection(
     for c in cell:
         assert min(math.dist(c, corner) for corner in want) < 1e-6
     assert vor.area(cell) > 0  # counter-clockwise
+
+
+def test_inside_hull_counts_edges_and_corners_in() -> None:
+    assert vor.inside_hull(SQUARE, (5.0, 5.0))
+    assert vor.inside_hull(SQUARE, (10.0, 5.0)) and vor.inside_hull(SQUARE, (0.0, 0.0))
+    assert not vor.inside_hull(SQUARE, (10.001, 5.0))
+    assert not vor.inside_hull(SQUARE, (-1.0, -1.0))
+    rng = random.Random(2)
+    hexagon = vor.convex_hull([(0, 0)], 10.0, sides=6)
+    for _ in range(500):
+        p = (rng.uniform(-12, 12), rng.uniform(-12, 12))
+        assert vor.inside_hull(hexagon, p) == vor.contains(hexagon, p)

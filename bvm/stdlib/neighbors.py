@@ -41,12 +41,16 @@ class Neighbors:
         poses = Table()
         # One C-level conversion rounds every number to binary32 (Buzz floats).
         values = array("f", [v for e in entries for v in e[1:4]])
-        for k, e in enumerate(entries):
+        if len(values) != 3 * len(entries):
+            raise ValueError("a neighbor entry is (id, distance, azimuth, elevation)")
+        rounded = iter(values)
+        for e, distance, azimuth, elevation in zip(
+            entries, rounded, rounded, rounded, strict=False
+        ):
             rid = e[0]
             if rid.__class__ is not int or not 0 <= rid <= 0xFFFF:
                 raise ValueError(f"neighbor id must be an int in 0..65535, got {rid!r}")
-            j = 3 * k
-            poses[rid] = Table(distance=values[j], azimuth=values[j + 1], elevation=values[j + 2])
+            poses[rid] = Table(distance=distance, azimuth=azimuth, elevation=elevation)
         self.table[POSES] = poses
 
     # ------------------------------------------------------------ script side

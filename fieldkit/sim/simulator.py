@@ -18,11 +18,12 @@ for a ground robot); the error is kept with its `file:line:col`; the rest of the
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import logging
 import math
 import random
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -45,6 +46,24 @@ NEIGHBOR_TIMEOUT_S = 5.0
 
 #: Where the simulated field is (any point works; scripts see GPS around it).
 DEFAULT_ORIGIN = (45.5017, -73.5673, 0.0)
+
+
+@contextlib.contextmanager
+def tuned_collector() -> Iterator[None]:
+    """Garbage collection tuned for stepping a swarm (what `Simulation.run` steps in).
+
+    Every tick allocates thousands of short-lived tables; the default collector thresholds
+    make it rescan the (large, long-lived) VMs over and over. Freeze what exists and collect
+    young objects less often: 40-60% faster, same results.
+    """
+    threshold = gc.get_threshold()
+    gc.freeze()
+    gc.set_threshold(50_000, 20, 100)
+    try:
+        yield
+    finally:
+        gc.set_threshold(*threshold)
+        gc.unfreeze()
 
 
 class ConfigError(ValueError):
@@ -364,20 +383,11 @@ class Simulation:
     def run(self, progress: Callable[[int, int], None] | None = None) -> None:
         """Run the configured number of simulated seconds."""
         total = round(self.config.seconds / TICK_S)
-        # Every tick allocates thousands of short-lived tables; the default collector
-        # thresholds make it rescan the (large, long-lived) VMs over and over. Freeze what
-        # exists and collect young objects less often: 40-60% faster, same results.
-        threshold = gc.get_threshold()
-        gc.freeze()
-        gc.set_threshold(50_000, 20, 100)
-        try:
+        with tuned_collector():
             while self.tick < total:
                 self.step()
                 if progress is not None:
                     progress(self.tick, total)
-        finally:
-            gc.set_threshold(*threshold)
-            gc.unfreeze()
 
     def summary(self) -> dict[str, object]:
         """The run's figures, as `summary.json` holds them."""
@@ -393,4 +403,12 @@ class Simulation:
         }
 
 
-__all__ = ["ConfigError", "RcCommand", "SimConfig", "Simulation", "TICK_S", "ON_GROUND"]
+__all__ = [
+    "ConfigError",
+    "RcCommand",
+    "SimConfig",
+    "Simulation",
+    "TICK_S",
+    "ON_GROUND",
+    "tuned_collector",
+]
