@@ -135,9 +135,10 @@ class ScriptAPI:
     # ------------------------------------------------------------ each tick
 
     def before_step(
-        self, sensors: Sensors, neighbors: list[tuple[int, float, float, float]]
+        self, sensors: Sensors, neighbors: list[tuple[int, float, float, float]] | None
     ) -> None:
-        """Push this tick's sensor tables and neighbours into the VM (before `step()`)."""
+        """Push this tick's sensor tables and neighbours into the VM (before `step()`);
+        neighbours None: the host has set them (`vm.neighbors.set_columns`)."""
         self.sensors = s = sensors
         if self.cur_goal is None:
             self.cur_goal = (s.lat, s.lon, s.alt)
@@ -162,7 +163,8 @@ class ScriptAPI:
         elif "rc_goto" not in g:
             g["rc_goto"] = Table(id=-1, latitude=0.0, longitude=0.0, altitude=0.0)
         g["cur_goal"] = Table(latitude=glat, longitude=glon, altitude=galt)
-        self.vm.set_neighbors(neighbors)
+        if neighbors is not None:
+            self.vm.set_neighbors(neighbors)
 
     def after_step(self) -> list[Command]:
         """The commands the script queued this tick (in order); updates `ROBOTS`."""

@@ -53,6 +53,14 @@ class Neighbors:
             poses[rid] = Table(distance=distance, azimuth=azimuth, elevation=elevation)
         self.table[POSES] = poses
 
+    def set_columns(self, ids: list[int], distances: list[float], azimuths: list[float]) -> None:
+        """`set` for values already rounded to binary32 and valid ids, elevations 0: what a
+        simulator computes for a whole swarm at once."""
+        poses = Table()
+        for rid, distance, azimuth in zip(ids, distances, azimuths, strict=True):
+            poses[rid] = Table(distance=distance, azimuth=azimuth, elevation=0.0)
+        self.table[POSES] = poses
+
     # ------------------------------------------------------------ script side
 
     def _derived(self, poses: Table) -> Table:

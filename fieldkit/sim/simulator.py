@@ -27,6 +27,8 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 import bvm
 from bvm.errors import BuzzError
 from fieldkit import bundle as wirebundle
@@ -290,7 +292,9 @@ class Simulation:
                 robot.vm.receive(src, payload)
         rcs: dict[int, RcCommand] = {c.robot: c for c in self._commands.get(t, ())}
         self.radio.set_positions({r.id: r.vehicle.position for r in robots.values()})
-        timeout = round(NEIGHBOR_TIMEOUT_S / TICK_S)
+        # A robot's own vehicle moves only in its turn, after it stepped: so every robot's
+        # neighbours can be computed now, for the whole swarm at once.
+        neighbors = self._neighbors(t)
         for robot in robots.values():
             # 2. sensors
             sensors = self._sensors(robot, t, rcs.get(robot.id))
@@ -298,23 +302,10 @@ class Simulation:
             vm = robot.vm
             if robot.error is None:
                 # 3. step
-                neighbors = []
-                stale = []
-                x, y = robot.vehicle.x, robot.vehicle.y
-                for nid, (nx, ny, heard) in robot.heard.items():
-                    if t - heard > timeout:
-                        stale.append(nid)
-                        continue
-                    # Range and bearing recomputed every tick from our current position
-                    # (ROSBuzz froze them at reception); in the local frame, which agrees
-                    # with the GPS flat-earth formula to well under a millimetre here.
-                    east, north = nx - x, ny - y
-                    neighbors.append((nid, math.hypot(east, north), math.atan2(east, north), 0.0))
-                for nid in stale:
-                    del robot.heard[nid]
                 try:
                     vm.process_inbox()
-                    robot.api.before_step(sensors, neighbors)
+                    vm.neighbors.set_columns(*neighbors[robot.id])
+                    robot.api.before_step(sensors, None)
                     vm.call("step")
                     commands = robot.api.after_step()
                     state = vm.globals.get("BVMSTATE")
@@ -329,6 +320,45 @@ class Simulation:
             self._actuate(robot, commands)
             robot.vehicle.step(TICK_S)
         self.tick += 1
+
+    def _neighbors(self, t: int) -> dict[int, tuple[list[int], list[float], list[float]]]:
+        """Each running robot's neighbours at tick t: ids, distances and azimuths (binary32),
+        from where the robot is to where each sender was when it sent (the bundle's GPS,
+        kept in the local frame, which agrees with the flat-earth formula to well under a
+        millimetre here). Recomputed every tick from our current position (ROSBuzz froze
+        them at reception); robots not heard for NEIGHBOR_TIMEOUT_S are dropped."""
+        timeout = round(NEIGHBOR_TIMEOUT_S / TICK_S)
+        owners: list[SimRobot] = []
+        counts: list[int] = []
+        ids: list[int] = []
+        xs: list[float] = []
+        ys: list[float] = []
+        for robot in self.robots.values():
+            if robot.error is not None:
+                continue
+            heard = robot.heard
+            if heard:
+                if t - min(h[2] for h in heard.values()) > timeout:
+                    for nid in [n for n, h in heard.items() if t - h[2] > timeout]:
+                        del heard[nid]
+                ids.extend(heard)
+                for hx, hy, _ in heard.values():
+                    xs.append(hx)
+                    ys.append(hy)
+            owners.append(robot)
+            counts.append(len(heard))
+        here = np.array([(r.vehicle.x, r.vehicle.y) for r in owners]).reshape(-1, 2)
+        east = np.array(xs) - np.repeat(here[:, 0], counts)
+        north = np.array(ys) - np.repeat(here[:, 1], counts)
+        # One numpy pass for the swarm, rounded to Buzz floats (binary32) at once.
+        distances = np.hypot(east, north).astype(np.float32).tolist()
+        azimuths = np.arctan2(east, north).astype(np.float32).tolist()
+        out = {}
+        k = 0
+        for robot, n in zip(owners, counts, strict=True):
+            out[robot.id] = (ids[k : k + n], distances[k : k + n], azimuths[k : k + n])
+            k += n
+        return out
 
     def _send(self, robot: SimRobot, s: Sensors, messages: list[bytes]) -> None:
         # The drained outbox fits a bundle by construction: no Bundle to build and check.
