@@ -436,6 +436,11 @@ class VM:
         self._require_program()
         if self.state == "done":
             self.state = "ready"
+        if not self.net.inbox:
+            # Nothing received: no listener can run, so no budget or error handling to
+            # set up (most steps of a quiet swarm); the swarm records still age.
+            self.net.process_inbox()
+            return
         self._run(self.net.process_inbox)
 
     def drain_outbox(self, budget_bytes: int | None = None, overhead: int = 0) -> list[bytes]:

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 import struct
+from array import array
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -79,7 +80,8 @@ _U16 = struct.Struct("<H")
 _HEAD = struct.Struct("<HH")
 _DOUBLE = struct.Struct("<d")
 _U64 = struct.Struct("<Q")
-_HEAD5 = struct.Struct("<QQddd")  # the payload64 header words: type/number, time, position
+# The payload64 header words (type/number, time, position), then the bundle's header.
+_IMAGE_HEAD = struct.Struct("<QQdddHH")
 _FIELDS = ("latitude", "longitude", "altitude")
 
 
@@ -335,15 +337,20 @@ def encode_fields(
     for m in messages:
         size += len(m)
     words = -(-size // 8)
-    # The payload64 memory image (little-endian words), then every word byte-swapped.
-    image = bytearray(_HEAD5.pack(BUZZ_MESSAGE | (number & 0xFFFF) << 16, time_ns, lat, lon, alt))
-    image += _HEAD.pack(words, robot)
+    # The payload64 memory image (little-endian words) in one join, then every 8-byte
+    # word reversed in place (byteswap reverses each item's bytes on any host).
+    parts = [
+        _IMAGE_HEAD.pack(
+            BUZZ_MESSAGE | (number & 0xFFFF) << 16, time_ns, lat, lon, alt, words, robot
+        )
+    ]
     for m in messages:
-        image += _U16.pack(len(m))
-        image += m
-    image += bytes(8 * words - size)
-    n = HEADER_WORDS + words
-    return struct.pack(f">{n}Q", *struct.unpack(f"<{n}Q", image))
+        parts.append(_U16.pack(len(m)))
+        parts.append(m)
+    parts.append(bytes(8 * words - size))
+    image = array("Q", b"".join(parts))
+    image.byteswap()
+    return image.tobytes()
 
 
 def decode(data: bytes) -> Bundle:
