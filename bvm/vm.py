@@ -277,7 +277,7 @@ class VM:
                     f"type mismatch: function '{name}()': expected closure, got {type_name(c)}"
                 )
             )
-        bargs = tuple(to_buzz(a) for a in args)
+        bargs = tuple(to_buzz(a) for a in args) if args else ()
         return to_python(self._run(lambda: self.invoke(c, bargs)))
 
     def call_closure(self, c: Any, *args: Any) -> Any:

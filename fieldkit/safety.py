@@ -53,7 +53,7 @@ class Order:
     args: tuple[float, ...] = ()
 
 
-@dataclass
+@dataclass(slots=True)
 class VehicleState:
     """What the supervisor needs to know of the vehicle this tick."""
 

@@ -39,7 +39,7 @@ ON_GROUND, IN_AIR, TAKING_OFF, LANDING = 1, 2, 3, 4
 V_UAV, V_GROUND = 0, 2
 
 
-@dataclass
+@dataclass(slots=True)
 class Sensors:
     """What the host knows about its vehicle this tick."""
 

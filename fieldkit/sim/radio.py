@@ -234,18 +234,15 @@ class Radio:
     def _within(self, position: Position, exclude: int | None, near: Iterable[int]) -> list[int]:
         """The robots of `near` (indices into the id-sorted list, ascending) within range of
         `position`, by id; the exact test decides, the tree only narrows the candidates."""
-        everyone = self._everyone
+        near = list(near)
+        self.distance_checks += len(near)
         r = self.model.range_m
         dist = math.dist
-        out = []
-        checks = 0
-        for j in near:
-            rid, p = everyone[j]
-            checks += 1
-            if rid != exclude and dist(position, p) <= r:
-                out.append(rid)
-        self.distance_checks += checks
-        return out
+        return [
+            rid
+            for rid, p in map(self._everyone.__getitem__, near)
+            if rid != exclude and dist(position, p) <= r
+        ]
 
     def hearers(self, position: Position, exclude: int | None = None) -> list[int]:
         """The robots (by id, ascending) within range of `position` at the last set_positions."""

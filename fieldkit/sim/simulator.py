@@ -270,13 +270,14 @@ class Simulation:
         robots = self.robots
         # 1. radio in
         decoded: dict[int, tuple[int, tuple[bytes, ...]]] = {}
+        reparse = self.config.decode_bundles
         for receiver, sender, data, pos in self.radio.deliveries(t):
             robot = robots.get(receiver)
             if robot is None or robot.error is not None:
                 continue
-            got = decoded.get(id(data))
-            if got is None and not self.config.decode_bundles:
-                got = data.sent  # type: ignore[attr-defined]
+            got = None if reparse else data.sent  # type: ignore[attr-defined]
+            if got is None:
+                got = decoded.get(id(data))
             if got is None:
                 try:
                     b = wirebundle.decode(data)
@@ -288,8 +289,10 @@ class Simulation:
             src, messages = got
             # Where the sender was when it sent: the bundle's GPS, kept in the local frame.
             robot.heard[src] = (pos[0], pos[1], t)
-            for payload in messages:
-                robot.vm.receive(src, payload)
+            if messages:
+                receive = robot.vm.receive
+                for payload in messages:
+                    receive(src, payload)
         rcs: dict[int, RcCommand] = {c.robot: c for c in self._commands.get(t, ())}
         self.radio.set_positions({r.id: r.vehicle.position for r in robots.values()})
         # A robot's own vehicle moves only in its turn, after it stepped: so every robot's
