@@ -1383,7 +1383,11 @@ def _build(
 ) -> Callable[..., Any]:
     """Compile a generated function (and its unguarded body, if it calls itself directly)."""
     first = addr = instrs[0].addr
-    fname, bname = f"_f{gen.key}", f"_b{gen.key}"
+    _make_room()
+    # The cache's generation is in the function names: code objects compare by value, not
+    # by file name, and LINE_MAPS holds each under the first equal one, whose death would
+    # remove the entry; so a copy compiled after a clear must not equal one still alive.
+    fname, bname = f"_f{gen.key}_{_generation}", f"_b{gen.key}_{_generation}"
     source: list[str] = []
     offsets = [first]  # line numbers start at 1; index 0 is unused
 
@@ -1452,23 +1456,24 @@ _code_generation = itertools.count()
 _generation = next(_code_generation)
 
 
+def _make_room() -> None:
+    """Clear the cache when full, starting a new generation of names."""
+    global _generation
+    if len(_CODE) >= _CODE_MAX:
+        _CODE.clear()
+        _generation = next(_code_generation)
+
+
 def _compiled(text: str, offsets: list[int], name: str) -> CodeType:
     """The code object of generated module source `text`, compiled once."""
-    global _generation
     key = (text, tuple(offsets))
     code = _CODE.get(key)
     if code is not None:
         return code
-    if len(_CODE) >= _CODE_MAX:
-        _CODE.clear()
-        # Code objects compare by value and LINE_MAPS holds each under the first equal
-        # one, whose death would remove the entry: a new file name keeps a recompiled
-        # copy unequal to any earlier one that is still alive.
-        _generation = next(_code_generation)
     if os.environ.get("BVM_DUMP_PY"):  # a developer's window into the translator
         sys.stderr.write(f"# {name}\n{text}\n")
     try:
-        code = compile(text, f"{name}#{_generation}>", "exec")
+        code = compile(text, f"{name}>", "exec")
     except (SyntaxError, RecursionError, MemoryError, ValueError) as e:
         raise NotStructured(f"generated code did not compile: {e}") from None
     _CODE[key] = code

@@ -18,7 +18,7 @@ import inspect
 import logging
 import sys
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, Literal
 
 from bvm import translate as _translate
 from bvm.budget import Budget, BudgetTimeout
@@ -168,6 +168,8 @@ class VM:
         # Per C-function id: (implementation, fixed arity or None); None for reserved ids.
         self._native_impls: list[tuple[Callable[..., Any], int | None] | None] = []
         self._entries: dict[tuple[int, int], Entry] = {}
+        # The global code's translation (False: it runs on the interpreter), per load.
+        self._toplevel: Callable[[], Any] | Literal[False] | None = None
         self._shapes: dict[int, int] = {}  # captured-record lengths seen per function
         self._global_start = 0
         self._depth = 0  # nesting of entries (host functions may call back into the VM)
@@ -228,6 +230,7 @@ class VM:
         self._shapes.clear()
         self._native_impls.clear()
         self._entries.clear()
+        self._toplevel = None
         self._new_swarm_state()
         self.state = "ready"
         self.error = None
@@ -250,12 +253,19 @@ class VM:
         def run() -> Any:
             if not self.translate:
                 return interpret(self, self._global_start, None, toplevel=True)
-            try:
-                f = _translate.translate(self, self._global_start, 0, 0, toplevel=True)
-            except _translate.NotStructured as e:
-                _log.info("global code runs on the interpreter: %s", e)
+            if self._toplevel is None:
+                # Once per load: what it assumes of the globals' values is guarded, and
+                # its bound names must not be bound again to other values.
+                try:
+                    self._toplevel = _translate.translate(
+                        self, self._global_start, 0, 0, toplevel=True
+                    )
+                except _translate.NotStructured as e:
+                    _log.info("global code runs on the interpreter: %s", e)
+                    self._toplevel = False
+            if self._toplevel is False:
                 return interpret(self, self._global_start, None, toplevel=True)
-            return f()
+            return self._toplevel()
 
         self._run(run)
         if self.state == "ready":

@@ -496,3 +496,43 @@ def test_vms_running_one_program_share_compiled_code_not_globals() -> None:
     with pytest.raises(bvm.BuzzError, match=r"shared\.bzz:3:2: type mismatch"):
         vms[1].call("f", 2)
     assert vms[0].call("f", 2) == 2  # (3 + 2) / 2: untouched by the other VM's error
+
+
+def test_running_the_global_code_again_keeps_its_bound_names() -> None:
+    """The second execute() swaps two library functions the first one bound directly."""
+    vm = bvm.VM()
+    vm.load(bvm.compile_source("tmp = f\nf = h\nh = tmp\na = f(2.5)\n", "swap.bzz"))
+    vm["f"], vm["h"] = vm.gload("isint"), vm.gload("isfloat")
+    vm.execute()
+    assert vm["a"] == 1  # f was isfloat at the call
+    vm.execute()
+    assert vm["a"] == 0  # and isint now
+
+
+def test_error_locations_survive_a_cleared_code_cache(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A translation compiled again after the cache was cleared keeps its line map when
+    the VMs holding the earlier copy are gone."""
+    import gc
+
+    from bvm import translate
+
+    monkeypatch.setattr(translate, "_CODE_MAX", 2)
+    src = "function g(x) {\n  var y = x + 1\n  return y.foo\n}\n"
+    other = "function h(x) {\n  return x * 3\n}\nfunction k(x) {\n  return x - 3\n}\n"
+
+    def robot(source: str) -> bvm.VM:
+        vm = bvm.VM()
+        vm.load(bvm.compile_source(source, "cache.bzz"))
+        return vm
+
+    first = robot(src)
+    with pytest.raises(bvm.BuzzError, match=r"cache\.bzz:4:0"):
+        first.call("g", 1)
+    filler = robot(other)
+    filler.call("h", 1)
+    filler.call("k", 1)  # fills the cache: cleared
+    second = robot(src)
+    del first
+    gc.collect()
+    with pytest.raises(bvm.BuzzError, match=r"cache\.bzz:4:0"):
+        second.call("g", 1)

@@ -377,13 +377,13 @@ class Radio:
         if not self._everyone:
             # Without positions nobody would hear anything: a silent trap, so refuse.
             raise RuntimeError("call set_positions() before broadcast()")
-        self._account(step, sender, len(data))
-        self.sent += 1
         if position is None:
-            position = self._positions[sender]
+            position = self._positions[sender]  # KeyError before anything is counted
             hearers = self._hearers_of(sender)
         else:
             hearers = self.hearers(position, sender)
+        self._account(step, sender, len(data))
+        self.sent += 1
         model = self.model
         kept = (
             self._survivors(step, sender, hearers)
