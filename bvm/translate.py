@@ -36,6 +36,7 @@ import math
 import os
 import re
 import sys
+import warnings
 import weakref
 from types import CodeType
 from typing import TYPE_CHECKING, Any
@@ -363,7 +364,9 @@ class _Codegen:
             self.consts[name] = value
             self.push(name, ty, value)
         else:
-            self.push(repr(value), ty, value, (value, value) if ty == INT else None)
+            # A negative literal is parenthesized: `-2.5.__class__` would negate the class.
+            code = f"({value!r})" if ty in (INT, FLOAT) and value < 0 else repr(value)
+            self.push(code, ty, value, (value, value) if ty == INT else None)
 
     @staticmethod
     def val(e: _Expr) -> str:
@@ -1473,7 +1476,10 @@ def _compiled(text: str, offsets: list[int], name: str) -> CodeType:
     if os.environ.get("BVM_DUMP_PY"):  # a developer's window into the translator
         sys.stderr.write(f"# {name}\n{text}\n")
     try:
-        code = compile(text, f"{name}>", "exec")
+        with warnings.catch_warnings():
+            # Hostile bytecode can index a number: a run-time error, not a compiler remark.
+            warnings.simplefilter("ignore", SyntaxWarning)
+            code = compile(text, f"{name}>", "exec")
     except (SyntaxError, RecursionError, MemoryError, ValueError) as e:
         raise NotStructured(f"generated code did not compile: {e}") from None
     _CODE[key] = code

@@ -536,3 +536,21 @@ def test_error_locations_survive_a_cleared_code_cache(monkeypatch: pytest.Monkey
     gc.collect()
     with pytest.raises(bvm.BuzzError, match=r"cache\.bzz:4:0"):
         second.call("g", 1)
+
+
+@pytest.mark.parametrize("literal", ["-2.5", "-7"])
+def test_indexing_a_negative_literal_is_a_type_error(literal: str) -> None:
+    """Hand-made bytecode may index a number: `-2.5.__class__` must not negate a class."""
+    src = "b = 0\nc = b[1]\n"
+    asm = bvm.compile_to_asm(src, "neg.bzz")
+    # Index the literal itself instead of the global that holds it.
+    head, sep, tail = asm.partition("\tgload\t|2,5")
+    assert sep, asm
+    prefix = head[: head.rfind("\tpushs")]
+    asm = prefix + f"\tpush{'f' if '.' in literal else 'i'} {literal}\t|2,5" + tail
+    program = bvm.assemble(asm, "neg.basm")
+    for translate in (True, False):
+        vm = bvm.VM(translate=translate)
+        vm.load(program)
+        with pytest.raises(bvm.BuzzError, match="type mismatch"):
+            vm.execute()
