@@ -1455,8 +1455,7 @@ def _build(
 #: Each VM still runs the code in its own namespace (`exec` below makes its functions).
 _CODE: dict[tuple[str, tuple[int, ...]], CodeType] = {}
 _CODE_MAX = 20_000
-_code_generation = itertools.count()
-_generation = next(_code_generation)
+_generation = 0
 
 
 def _make_room() -> None:
@@ -1464,7 +1463,7 @@ def _make_room() -> None:
     global _generation
     if len(_CODE) >= _CODE_MAX:
         _CODE.clear()
-        _generation = next(_code_generation)
+        _generation += 1
 
 
 def _compiled(text: str, offsets: list[int], name: str) -> CodeType:

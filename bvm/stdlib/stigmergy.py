@@ -54,6 +54,11 @@ class Element:
         return t
 
 
+def _element(msg: wire.VstigPut | wire.VstigQuery, shared: bool) -> Element:
+    """The element a received PUT or QUERY carries, with a value of this VM's own."""
+    return Element(copy_tree(msg.value) if shared else msg.value, msg.timestamp, msg.robot)
+
+
 def bucket(key: Any) -> int:
     """The reference's stigmergy hash bucket of a key (foreach goes bucket by bucket)."""
     cls = key.__class__
@@ -125,12 +130,11 @@ class Stigmergies:
         local = vs.entries.get(msg.key)
         ts = msg.timestamp
         if local is None or local.timestamp < ts:
-            remote = Element(copy_tree(msg.value) if shared else msg.value, ts, msg.robot)
+            remote = _element(msg, shared)
             self._store(vs, msg.key, remote)
             self._send(wire.VstigPut, vs.id, msg.key, remote)
         elif local.timestamp == ts and local.robot != msg.robot:
-            remote = Element(copy_tree(msg.value) if shared else msg.value, ts, msg.robot)
-            self._conflict(vs, msg.key, local, remote)
+            self._conflict(vs, msg.key, local, _element(msg, shared))
 
     def on_query(self, msg: wire.VstigQuery, payload: bytes, shared: bool = False) -> None:
         """A received QUERY (spec wire §5.3); `shared` as for on_put."""
@@ -141,14 +145,13 @@ class Stigmergies:
             return
         ts = msg.timestamp
         if local is None or local.timestamp < ts:
-            remote = Element(copy_tree(msg.value) if shared else msg.value, ts, msg.robot)
+            remote = _element(msg, shared)
             self._store(vs, msg.key, remote)
             self._send(wire.VstigPut, vs.id, msg.key, remote)
         elif local.timestamp > ts:
             self._send(wire.VstigPut, vs.id, msg.key, local)  # the reply
         elif local.robot != msg.robot:
-            remote = Element(copy_tree(msg.value) if shared else msg.value, ts, msg.robot)
-            self._conflict(vs, msg.key, local, remote)
+            self._conflict(vs, msg.key, local, _element(msg, shared))
 
     def _forward(self, msg: wire.VstigQuery, payload: bytes) -> None:
         """Re-send a query unchanged, unless the same one was seen lately (ends ping-pong)."""
