@@ -92,8 +92,22 @@ _TX_STATUS = struct.Struct(">BBHBBB")
 _AT_HEAD = struct.Struct(">BB2sB")
 
 
+class _ApiFrame:
+    """What every frame class shares: its API frame is its frame data, framed."""
+
+    __slots__ = ()
+
+    def frame_data(self) -> bytes:
+        """The frame data: type byte, fields and payload."""
+        raise NotImplementedError
+
+    def encode(self, api_mode: int = 1) -> bytes:
+        """The whole API frame in `api_mode`."""
+        return frame_bytes(self.frame_data(), api_mode)
+
+
 @dataclass(frozen=True, slots=True)
-class TransmitRequest:
+class TransmitRequest(_ApiFrame):
     """Frame 0x10: send `rf_data` to `dest64` (broadcast by default)."""
 
     rf_data: bytes
@@ -110,13 +124,9 @@ class TransmitRequest:
         )
         return head + self.rf_data
 
-    def encode(self, api_mode: int = 1) -> bytes:
-        """The whole API frame in `api_mode`."""
-        return frame_bytes(self.frame_data(), api_mode)
-
 
 @dataclass(frozen=True, slots=True)
-class ReceivePacket:
+class ReceivePacket(_ApiFrame):
     """Frame 0x90: `rf_data` received from the radio with serial `source64`."""
 
     source64: int
@@ -128,13 +138,9 @@ class ReceivePacket:
         """The frame data: type byte, header fields, RF data."""
         return _RX_HEAD.pack(RX_PACKET, self.source64, self.source16, self.options) + self.rf_data
 
-    def encode(self, api_mode: int = 1) -> bytes:
-        """The whole API frame in `api_mode`."""
-        return frame_bytes(self.frame_data(), api_mode)
-
 
 @dataclass(frozen=True, slots=True)
-class TransmitStatus:
+class TransmitStatus(_ApiFrame):
     """Frame 0x8B: the outcome of the transmit request with `frame_id` (0 = success)."""
 
     frame_id: int
@@ -154,13 +160,9 @@ class TransmitStatus:
             self.discovery_status,
         )
 
-    def encode(self, api_mode: int = 1) -> bytes:
-        """The whole API frame in `api_mode`."""
-        return frame_bytes(self.frame_data(), api_mode)
-
 
 @dataclass(frozen=True, slots=True)
-class ModemStatus:
+class ModemStatus(_ApiFrame):
     """Frame 0x8A: a modem event (0 hardware reset, 1 watchdog reset, ...)."""
 
     status: int
@@ -169,13 +171,9 @@ class ModemStatus:
         """The frame data: type byte and status."""
         return bytes((MODEM_STATUS, self.status))
 
-    def encode(self, api_mode: int = 1) -> bytes:
-        """The whole API frame in `api_mode`."""
-        return frame_bytes(self.frame_data(), api_mode)
-
 
 @dataclass(frozen=True, slots=True)
-class AtResponse:
+class AtResponse(_ApiFrame):
     """Frame 0x88: the answer to an AT command (e.g. b"SH"/b"SL", the serial halves)."""
 
     frame_id: int
@@ -186,10 +184,6 @@ class AtResponse:
     def frame_data(self) -> bytes:
         """The frame data: type byte, fields, command data."""
         return _AT_HEAD.pack(AT_RESPONSE, self.frame_id, self.command, self.status) + self.data
-
-    def encode(self, api_mode: int = 1) -> bytes:
-        """The whole API frame in `api_mode`."""
-        return frame_bytes(self.frame_data(), api_mode)
 
 
 Frame = TransmitRequest | ReceivePacket | TransmitStatus | ModemStatus | AtResponse
