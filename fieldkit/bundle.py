@@ -80,8 +80,7 @@ _U16 = struct.Struct("<H")
 _HEAD = struct.Struct("<HH")
 _DOUBLE = struct.Struct("<d")
 _U64 = struct.Struct("<Q")
-# The payload64 header words (type/number, time, position), then the bundle's header.
-_IMAGE_HEAD = struct.Struct("<QQdddHH")
+_IMAGE_HEAD = struct.Struct("<QQddd")  # the payload64 header words: type/number, time, position
 _FIELDS = ("latitude", "longitude", "altitude")
 
 
@@ -192,14 +191,21 @@ def pack_bundle(robot: int, messages: Sequence[bytes]) -> bytes:
     """The L1 bundle bytes: header, length-prefixed messages, zero padding to 8 bytes."""
     _check_u(robot, 16, "robot")
     _check_messages(messages)
-    size = block_size(messages)
-    words = -(-size // 8)
-    out = bytearray(_HEAD.pack(words, robot))
+    return _l1(robot, messages)
+
+
+def _l1(robot: int, messages: Sequence[bytes]) -> bytes:
+    """`pack_bundle` without its checks."""
+    parts = [b""]  # the header, once the size is known
+    size = BUNDLE_HEADER
     for m in messages:
-        out += _U16.pack(len(m))
-        out += m
-    out += bytes(8 * words - size)
-    return bytes(out)
+        parts.append(_U16.pack(len(m)))
+        parts.append(m)
+        size += MSG_OVERHEAD + len(m)
+    words = -(-size // 8)
+    parts[0] = _HEAD.pack(words, robot)
+    parts.append(bytes(8 * words - size))
+    return b"".join(parts)
 
 
 def unpack_bundle(data: bytes) -> tuple[int, tuple[bytes, ...]]:
@@ -333,21 +339,12 @@ def encode_fields(
     """`encode(Bundle(robot, messages, ...))` without building and re-checking a Bundle: for
     messages that are known to fit, such as a drained outbox (the simulator sends one
     bundle per robot per tick)."""
-    size = BUNDLE_HEADER + MSG_OVERHEAD * len(messages)
-    for m in messages:
-        size += len(m)
-    words = -(-size // 8)
-    # The payload64 memory image (little-endian words) in one join, then every 8-byte
-    # word reversed in place (byteswap reverses each item's bytes on any host).
+    # The payload64 memory image (little-endian words), then every 8-byte word reversed in
+    # place (byteswap reverses each item's bytes on any host).
     parts = [
-        _IMAGE_HEAD.pack(
-            BUZZ_MESSAGE | (number & 0xFFFF) << 16, time_ns, lat, lon, alt, words, robot
-        )
+        _IMAGE_HEAD.pack(BUZZ_MESSAGE | (number & 0xFFFF) << 16, time_ns, lat, lon, alt),
+        _l1(robot, messages),
     ]
-    for m in messages:
-        parts.append(_U16.pack(len(m)))
-        parts.append(m)
-    parts.append(bytes(8 * words - size))
     image = array("Q", b"".join(parts))
     image.byteswap()
     return image.tobytes()
