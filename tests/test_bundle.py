@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import random
 import struct
+from dataclasses import replace
 
 import pytest
 from fuzz import bundle_fuzz
@@ -22,7 +23,7 @@ FAST = settings(deadline=None, derandomize=True, suppress_health_check=[HealthCh
 CMD_22 = bytes.fromhex("00 03 0003 636d64 01 00000016")  # broadcast "cmd" = 22 (spec wire §2)
 JOIN_3 = bytes.fromhex("04 0003")
 TIME = 0x1122334455667788  # the spec leaves the time word arbitrary
-EXAMPLE = B.Bundle(7, (CMD_22, JOIN_3), 45.5, -73.6, 10.0, number=1, time_ns=TIME)
+EXAMPLE = replace(bundle_fuzz.EXAMPLE, time_ns=TIME)  # spec §11: CMD_22 and JOIN_3
 
 
 # ---------------------------------------------------------------- spec §11, byte for byte

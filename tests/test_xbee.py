@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import replace
 
 import pytest
 from digi.xbee.models.address import XBee16BitAddress, XBee64BitAddress
@@ -15,6 +16,7 @@ from digi.xbee.packets.common import ModemStatusPacket, TransmitStatusPacket
 from digi.xbee.packets.common import ReceivePacket as DigiReceive
 from digi.xbee.packets.common import TransmitPacket as DigiTransmit
 from digi.xbee.packets.factory import build_frame
+from fuzz import bundle_fuzz
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -23,15 +25,7 @@ from fieldkit.radio import xbee as X
 
 #: The spec's worked example (wire §11): robot 7, number 1, BROADCAST "cmd"=22 + JOIN 3.
 TIME_NS = 0x1122334455667788
-EXAMPLE = B.Bundle(
-    7,
-    (bytes.fromhex("00 03 0003 636d64 01 00000016"), bytes.fromhex("04 0003")),
-    45.5,
-    -73.6,
-    10.0,
-    number=1,
-    time_ns=TIME_NS,
-)
+EXAMPLE = replace(bundle_fuzz.EXAMPLE, time_ns=TIME_NS)
 #: §11's XBee RF data, with the 8 time bytes filled in.
 SPEC_RF = bytes.fromhex(
     "53 07 01 | 00 00 00 00 00 01 00 02 | 11 22 33 44 55 66 77 88 | 40 46 c0 00 00 00 00 00 |"

@@ -21,6 +21,7 @@ from collections.abc import Callable, Iterator
 import pytest
 from digi.xbee.models.address import XBee16BitAddress, XBee64BitAddress
 from digi.xbee.packets.common import ReceivePacket as DigiReceive
+from fuzz.bundle_fuzz import EXAMPLE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -30,14 +31,6 @@ from fieldkit.radio import RadioLink, XBeeRadio, from_profile, open_radio
 from fieldkit.radio import xbee as X
 from fieldkit.radio import xbeemav as M
 
-EXAMPLE = B.Bundle(
-    7,
-    (bytes.fromhex("00 03 0003 636d64 01 00000016"), bytes.fromhex("04 0003")),
-    45.5,
-    -73.6,
-    10.0,
-    number=1,
-)
 SERIALS = {1: 0x0013A20040000001, 2: 0x0013A20040000002, 3: 0x0013A20040000003}
 ID_MAP = {f"{s:016X}": i for i, s in SERIALS.items()}
 
@@ -333,25 +326,19 @@ def test_interframe_adapts_like_xbeemav() -> None:
     a, b, clock = pair()
     a.interframe_s = a.base_interframe_s = 0.1
     a.submit(big_payload(40), 1)
-    for _ in range(20):
-        for rf in a.pump():
-            b.receive(1, rf)
-        for ack in b.pump():
-            a.receive(2, ack)
-        clock.now += 0.1
+    transfer(a, b, clock, rounds=20)
     assert a.stats["transfers_done"] == 1
     assert a.interframe_s == pytest.approx(0.095)
     a.submit(big_payload(40), 2)
-    dropped = False
-    for _ in range(40):
-        for rf in a.pump():
-            if rf[:1] == b"F" and not dropped:
-                dropped = True
-                continue
-            b.receive(1, rf)
-        for ack in b.pump():
-            a.receive(2, ack)
-        clock.now += 0.1
+    dropped: list[bytes] = []
+
+    def lose_first_fragment(rf: bytes) -> bool:
+        if rf[:1] == b"F" and not dropped:
+            dropped.append(rf)
+            return True
+        return False
+
+    transfer(a, b, clock, lose=lose_first_fragment, rounds=40)
     assert a.stats["transfers_done"] == 2
     assert a.interframe_s == pytest.approx(0.1)
 
