@@ -231,10 +231,9 @@ class Radio:
             self._tree = cKDTree([p for _, p in self._everyone])
         return self._tree
 
-    def _within(self, position: Position, exclude: int | None, near: Iterable[int]) -> list[int]:
+    def _within(self, position: Position, exclude: int | None, near: Sequence[int]) -> list[int]:
         """The robots of `near` (indices into the id-sorted list, ascending) within range of
         `position`, by id; the exact test decides, the tree only narrows the candidates."""
-        near = list(near)
         self.distance_checks += len(near)
         r = self.model.range_m
         dist = math.dist
