@@ -160,6 +160,43 @@ def test_range_is_three_dimensional() -> None:
     assert radio.neighbors(0) == [2]
 
 
+def test_hearers_on_the_range_circle_agree_with_the_exact_test() -> None:
+    """Robots at the range, in every direction: the whole-tick hearers (numpy) decide each
+    as the exact per-point test (math.dist) does, to the last bit."""
+    rng = random.Random(3)
+    r = 37.3
+    points = {0: (0.0, 0.0, 0.0)}
+    for i in range(1, 2001):
+        a = rng.uniform(0.0, 2.0 * math.pi)
+        points[i] = (r * math.cos(a), r * math.sin(a), rng.choice((0.0, 1e-7, -1e-7)))
+    radio = Radio(LinkModel(range_m=r), 0)
+    radio.set_positions(points)
+    exact = [i for i in range(1, 2001) if math.dist(points[0], points[i]) <= r]
+    assert 0 < len(exact) < 2000  # both sides of the boundary occur
+    assert radio.neighbors(0) == exact == radio.hearers(points[0], 0)
+    for i in (1, 500, 2000):
+        assert radio.neighbors(i) == radio.hearers(points[i], i)
+
+
+def test_receptions_group_each_broadcast_with_its_receivers() -> None:
+    """receptions() and deliveries() are the same events, with the same random draws."""
+    model = LinkModel(latency=1, jitter=2, drop=0.3)
+    grouped, flat = Radio(model, 5), Radio(model, 5)
+    got_grouped, got_flat = [], []
+    for t in range(20):
+        for radio in (grouped, flat):
+            radio.set_positions(cluster(8))
+            for sender in range(9):
+                radio.broadcast(t, sender, bytes([t, sender]))
+        for sender, data, where, receivers in grouped.receptions(t):
+            assert receivers == sorted(receivers) and sender not in receivers
+            got_grouped += [(r, sender, data, where) for r in receivers]
+        got_flat += flat.deliveries(t)
+    assert got_grouped == got_flat and len(got_flat) > 500
+    assert grouped.delivered == flat.delivered == len(got_flat)
+    assert grouped.in_flight == flat.in_flight > 0
+
+
 def test_latency_and_jitter() -> None:
     radio = Radio(LinkModel(latency=3, jitter=2), 6)
     radio.set_positions(cluster(20))

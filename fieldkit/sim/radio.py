@@ -21,14 +21,16 @@ from where the sender was, as ROSBuzz does from the packet's latitude and longit
 Two interfaces share the model:
 
 * per tick, `set_positions(positions)`, then `broadcast(step, sender, data)` once per
-  sender (one opaque bundle, e.g. `fieldkit.bundle.encode`), then `deliveries(step)` gives
-  (receiver, sender, data, sender_position) tuples;
+  sender (one opaque bundle, e.g. `fieldkit.bundle.encode`), then `receptions(step)` gives
+  each broadcast with the robots receiving it, (sender, data, sender_position, receivers),
+  or `deliveries(step)` one (receiver, sender, data, sender_position) tuple per reception;
 * `transmit(step, sender, payloads, positions)` / `arrivals(step)`, the per-message
   interface of `fieldkit.sim.harness`.
 
-Speed, for thousands of robots: the hearers of every sender come from one query of a k-d
-tree (scipy's cKDTree) built once per tick, so each sender checks the distance to about its
-own neighbours instead of all N; deliveries are plain tuples, queued in per-tick buckets.
+Speed, for thousands of robots: the hearers of every robot come from one query of a k-d
+tree (scipy's cKDTree) built once per tick for the pairs within range, checked and sorted
+in one numpy pass, so each sender costs about its own neighbours instead of all N; a
+broadcast is queued once with its receivers, in per-tick buckets.
 Reproducibility: every random draw comes from one `random.Random(seed)`, in a fixed order
 (the order of the broadcast/transmit calls; within a broadcast, the loss draws of the
 receivers by id, then the jitter draws of the survivors; within a transmit, per payload and
@@ -46,11 +48,14 @@ from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
+import numpy as np
 from scipy.spatial import cKDTree
 
 Position = tuple[float, float, float]  # metres in a local frame: x east, y north, z up
 #: One delivery: (receiver, sender, data, the sender's position when it sent).
 Delivery = tuple[int, int, bytes, Position]
+#: One broadcast as it arrives: (sender, data, sender's position, the receivers by id).
+Reception = tuple[int, bytes, Position, list[int]]
 
 _CANDIDATE_MARGIN = 1.0 + 1e-9
 
@@ -200,7 +205,7 @@ class Radio:
         self._tree: cKDTree | None = None
         self._heard_by: dict[int, list[int]] | None = None  # robot -> candidate indices
         self._grid_source: tuple[int, int] | None = None  # (id(positions), step) of transmit
-        self._buckets: dict[int, list[Delivery]] = {}  # due step -> deliveries, in send order
+        self._buckets: dict[int, list[Reception]] = {}  # due step -> receptions, in send order
         self._due: list[int] = []  # heap of the keys of _buckets
         self._links: dict[int, dict[int, int]] = {}  # sender -> receiver -> 2 * tick + bad
         self._bytes_step: int | None = None
@@ -255,22 +260,49 @@ class Radio:
         return self._within(position, exclude, near)
 
     def _hearers_of(self, robot: int) -> list[int]:
-        """hearers(position of `robot`, robot), for every robot of the tick in one query."""
+        """hearers(position of `robot`, robot), from the whole tick's lists (do not modify)."""
         if self._heard_by is None:
-            tree = self._candidates()
-            if tree is None:
+            if self._candidates() is None:
                 return self.hearers(self._positions[robot], robot)
-            found = tree.query_ball_point(
-                tree.data, self.model.range_m * _CANDIDATE_MARGIN, return_sorted=True
-            )
-            self._heard_by = {
-                rid: near for (rid, _), near in zip(self._everyone, found, strict=True)
-            }
-        return self._within(self._positions[robot], robot, self._heard_by[robot])
+            self._heard_by = self._all_hearers()
+        return self._heard_by[robot]
+
+    def _all_hearers(self) -> dict[int, list[int]]:
+        """Every robot's hearers this tick, by id, in one numpy pass over the tree's pairs."""
+        tree = self._tree
+        assert tree is not None
+        r = self.model.range_m
+        pairs = tree.query_pairs(r * _CANDIDATE_MARGIN, output_type="ndarray")
+        self.distance_checks += 2 * len(pairs)
+        first, second = pairs[:, 0], pairs[:, 1]
+        d = tree.data[first] - tree.data[second]
+        dist = np.sqrt(np.einsum("ij,ij->i", d, d))
+        keep = dist <= r
+        # The exact test is math.dist's (as `hearers`): numpy's distance may differ from it
+        # in the last bits, so it decides the few pairs that close to the range.
+        everyone = self._everyone
+        for k in np.flatnonzero(np.abs(dist - r) <= 1e-9 * r).tolist():
+            i, j = pairs[k].tolist()
+            keep[k] = math.dist(everyone[i][1], everyone[j][1]) <= r
+        first, second = first[keep], second[keep]
+        # Each kept pair hears both ways; sorted by (listener, speaker) index, which is id
+        # order since `_everyone` is sorted by id.
+        listener = np.concatenate((first, second))
+        speaker = np.concatenate((second, first))
+        order = np.lexsort((speaker, listener))
+        ids = np.fromiter((rid for rid, _ in everyone), dtype=np.int64, count=len(everyone))
+        heard = ids[speaker[order]].tolist()
+        ends = np.cumsum(np.bincount(listener, minlength=len(everyone))).tolist()
+        out = {}
+        start = 0
+        for (rid, _), end in zip(everyone, ends, strict=True):
+            out[rid] = heard[start:end]
+            start = end
+        return out
 
     def neighbors(self, robot: int) -> list[int]:
         """The robots `robot` can hear at its position of the last set_positions, by id."""
-        return self._hearers_of(robot)
+        return list(self._hearers_of(robot))
 
     # ------------------------------------------------------------------ losses
 
@@ -392,37 +424,47 @@ class Radio:
         self.dropped += len(hearers) - len(kept)
         due = step + model.latency
         if not model.jitter:
-            self._bucket(due).extend([(r, sender, data, position) for r in kept])
+            if kept:
+                self._bucket(due).append((sender, data, position, kept))
             return
         rnd = self.rng.random
         span = model.jitter + 1
-        slots = [self._bucket(due + k) for k in range(span)]
+        slots: list[list[int]] = [[] for _ in range(span)]
         for r in kept:
-            slots[int(rnd() * span)].append((r, sender, data, position))
+            slots[int(rnd() * span)].append(r)
+        for k, receivers in enumerate(slots):
+            if receivers:
+                self._bucket(due + k).append((sender, data, position, receivers))
 
-    def _bucket(self, due: int) -> list[Delivery]:
+    def _bucket(self, due: int) -> list[Reception]:
         bucket = self._buckets.get(due)
         if bucket is None:
             bucket = self._buckets[due] = []
             heapq.heappush(self._due, due)
         return bucket
 
-    def deliveries(self, step: int) -> list[Delivery]:
-        """Pop every (receiver, sender, data, sender_position) due by `step`, in send order."""
+    def receptions(self, step: int) -> list[Reception]:
+        """Pop every broadcast due by `step` with the robots receiving it then, in send order:
+        (sender, data, sender_position, receivers by id). Do not modify the lists."""
         due = self._due
         if not due or due[0] > step:
             return []
-        out: list[Delivery] = []
+        out: list[Reception] = []
         buckets = self._buckets
         while due and due[0] <= step:
             out += buckets.pop(heapq.heappop(due))
-        self.delivered += len(out)
+        self.delivered += sum(len(e[3]) for e in out)
         return out
+
+    def deliveries(self, step: int) -> list[Delivery]:
+        """Pop every (receiver, sender, data, sender_position) due by `step`, in send order."""
+        return [(r, s, d, p) for s, d, p, receivers in self.receptions(step) for r in receivers]
 
     @property
     def in_flight(self) -> int:
         """Deliveries queued and not yet due (both interfaces)."""
-        return sum(map(len, self._buckets.values())) + len(self._in_flight)
+        queued = sum(len(e[3]) for bucket in self._buckets.values() for e in bucket)
+        return queued + len(self._in_flight)
 
     # ------------------------------------------------------------------ per-message interface
 

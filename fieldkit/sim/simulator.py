@@ -269,30 +269,33 @@ class Simulation:
         t = self.tick
         robots = self.robots
         # 1. radio in
-        decoded: dict[int, tuple[int, tuple[bytes, ...]]] = {}
         reparse = self.config.decode_bundles
-        for receiver, sender, data, pos in self.radio.deliveries(t):
-            robot = robots.get(receiver)
-            if robot is None or robot.error is not None:
-                continue
+        for sender, data, pos, receivers in self.radio.receptions(t):
             got = None if reparse else data.sent  # type: ignore[attr-defined]
-            if got is None:
-                got = decoded.get(id(data))
             if got is None:
                 try:
                     b = wirebundle.decode(data)
                 except wirebundle.BundleError as e:
-                    robot.vm.net.stats["bundle_errors"] += 1
-                    _log.warning("robot %d: bad bundle from %d: %s", receiver, sender, e)
+                    for receiver in receivers:
+                        robot = robots.get(receiver)
+                        if robot is not None and robot.error is None:
+                            robot.vm.net.stats["bundle_errors"] += 1
+                    _log.warning("robots %s: bad bundle from %d: %s", receivers, sender, e)
                     continue
-                got = decoded[id(data)] = (b.robot, b.messages)
+                got = (b.robot, b.messages)
             src, messages = got
-            # Where the sender was when it sent: the bundle's GPS, kept in the local frame.
-            robot.heard[src] = (pos[0], pos[1], t)
-            if messages:
-                receive = robot.vm.receive
-                for payload in messages:
-                    receive(src, payload)
+            # Where the sender was when it sent: the bundle's GPS, kept in the local frame
+            # (one entry shared by every receiver: it is never modified).
+            entry = (pos[0], pos[1], t)
+            for receiver in receivers:
+                robot = robots.get(receiver)
+                if robot is None or robot.error is not None:
+                    continue
+                robot.heard[src] = entry
+                if messages:
+                    receive = robot.vm.receive
+                    for payload in messages:
+                        receive(src, payload)
         rcs: dict[int, RcCommand] = {c.robot: c for c in self._commands.get(t, ())}
         self.radio.set_positions({r.id: r.vehicle.position for r in robots.values()})
         # A robot's own vehicle moves only in its turn, after it stepped: so every robot's
