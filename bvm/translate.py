@@ -1541,7 +1541,20 @@ def _function_bodies(
 
 def _redo(rule: Callable[[Any, Any], Any], a: Any, b: Any, result: Any) -> Any:
     """Python's `a + b` (or `-`) was not a small int: wrap an int, else apply the full rule."""
-    return i32(result) if result.__class__ is int else rule(a, b)
+    if result.__class__ is int:
+        return i32(result)
+    if a.__class__ is float and b.__class__ is float:
+        # Two binary32 values: their binary64 sum or difference rounded once to binary32
+        # is the correctly rounded binary32 result (53 >= 2 * 24 + 2 bits), which the full
+        # rule computes more slowly. NaNs and unrounded host floats take the full rule.
+        cell = F32_CELL
+        cell[0] = a
+        if cell[0] == a:
+            cell[0] = b
+            if cell[0] == b:
+                cell[0] = result
+                return cell[0]
+    return rule(a, b)
 
 
 def _not_callable(c: Any) -> Any:

@@ -32,6 +32,8 @@ function lt(a, b) { return (a < b) }
 function eq(a, b) { return (a == b) }
 function shl(a, b) { return a << b }
 function shr(a, b) { return a >> b }
+function tadd(t) { return t.a + t.b }
+function tsub(t) { return t.a - t.b }
 """
 
 
@@ -117,6 +119,21 @@ def test_float32_arithmetic_matches_single_precision(translate: bool, a: float, 
         got = vm.call(op, a, b)
         assert same_float(got, np32(op, a, b)), (op, a, b, got)
         assert got != got or f32(got) == got  # always a binary32 value
+
+
+@PATHS
+@settings(max_examples=300, deadline=None)
+@given(a=st.floats(allow_nan=False), b=st.one_of(FLOAT32, st.floats(allow_nan=False)))
+def test_untyped_float_sums_round_their_operands_first(translate: bool, a: float, b: float) -> None:
+    """Operands read from a table have no known type (translated code adds them in Python
+    and redoes what is not a small int); a host may even store unrounded doubles there.
+    Either way the result is binary32 arithmetic on the operands rounded to binary32."""
+    vm = VMS[translate]
+    t = bvm.Table(a=a, b=b)
+    with np.errstate(over="ignore"):
+        a32, b32 = float(np.float32(a)), float(np.float32(b))
+    assert same_float(vm.call("tadd", t), np32("add", a32, b32)), (a, b)
+    assert same_float(vm.call("tsub", t), np32("sub", a32, b32)), (a, b)
 
 
 @PATHS

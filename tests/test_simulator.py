@@ -7,7 +7,14 @@ from pathlib import Path
 
 import pytest
 
-from fieldkit.sim.simulator import ConfigError, RcCommand, SimConfig, Simulation
+from fieldkit.sim.simulator import (
+    NEIGHBOR_TIMEOUT_S,
+    TICK_S,
+    ConfigError,
+    RcCommand,
+    SimConfig,
+    Simulation,
+)
 
 TAKEOFF = """
 s = swarm.create(1)
@@ -130,3 +137,27 @@ def test_bursty_losses(tmp_path: Path) -> None:
     assert sim.summary()["final_states"] == {str(i): "FLYING" for i in range(1, 6)}
     with pytest.raises(ConfigError, match="--burst"):
         Simulation(SimConfig(script=script(tmp_path), robots=2, drop=0.9, burst=1.0))
+
+
+def test_a_robot_not_heard_for_the_timeout_leaves_its_neighbours(tmp_path: Path) -> None:
+    """A robot that goes silent stays a neighbour where it was last heard, for
+    NEIGHBOR_TIMEOUT_S, and is gone after; the others are unaffected."""
+    src = "function init() {}\nfunction step() {}\n"
+    cfg = SimConfig(script=script(tmp_path, src), robots=4, seconds=60.0, range_m=50.0)
+    sim = Simulation(cfg)
+    for _ in range(5):
+        sim.step()
+
+    def poses(rid: int) -> dict:
+        return dict(sim.robots[rid].vm.neighbors.table["poses"])
+
+    assert sorted(poses(1)) == [2, 3, 4]
+    where = poses(1)[4]["distance"]
+    sim.robots[4].vehicle.x += 1000.0  # out of everyone's range: silent from now on
+    # Its last bundle, sent before it moved, is heard one tick later (latency 1).
+    timeout = round(NEIGHBOR_TIMEOUT_S / TICK_S)
+    for _ in range(timeout + 1):
+        sim.step()
+        assert sorted(poses(1)) == [2, 3, 4] and poses(1)[4]["distance"] == where
+    sim.step()
+    assert sorted(poses(1)) == [2, 3] and sorted(poses(2)) == [1, 3] and poses(4) == {}
