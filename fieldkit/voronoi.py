@@ -11,7 +11,8 @@ code, the polygon's corners that fall inside a cell belong to it, so boundary ce
 complete and their centroids unbiased.
 
 The boundary is a convex polygon (its convex hull is taken, so vertex order does not
-matter); hulls come from Qhull through `scipy.spatial.ConvexHull`. Degenerate inputs
+matter); hulls come from Qhull through `scipy.spatial.ConvexHull` (on the closure's hot
+path, from the engine ConvexHull drives: `hull_vertices`). Degenerate inputs
 (fewer than 3 points, collinear points, duplicate sites, a site outside the polygon) give
 empty or degenerate results, never exceptions.
 """
@@ -25,6 +26,11 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+try:  # ConvexHull's own engine, for the hot path; see `hull_vertices`
+    from scipy.spatial._qhull import _Qhull
+except ImportError:  # pragma: no cover - a scipy that moved it: ConvexHull does the job
+    _Qhull = None
+
 Point = tuple[float, float]
 
 #: Below this many square metres a polygon is treated as having no area.
@@ -32,6 +38,44 @@ AREA_EPS = 1e-9
 
 #: Distance under which two points are the same (clipping, duplicate sites).
 EPS = 1e-9
+
+
+def hull_vertices(points: np.ndarray) -> list[int]:
+    """The indices of the 2-D convex hull's vertices, counter-clockwise, by Qhull: what
+    `ConvexHull(points).vertices` gives, raising QhullError or ValueError as it does.
+
+    The voronoi closure asks this of ten to twenty points for every robot of a swarm;
+    ConvexHull then spends more time filling attributes nobody reads (simplices, facet
+    neighbours, equations, area) than Qhull spends on the hull. So this goes to the engine
+    ConvexHull itself drives, `scipy.spatial._qhull._Qhull`, with ConvexHull's options; a
+    scipy where that does not work as checked at import gets ConvexHull.
+    """
+    if _engine_ok:
+        qhull = _Qhull(b"i", points, b"", required_options=b"Qt")
+        try:
+            return qhull.get_extremes_2d().tolist()
+        finally:
+            qhull.close()
+    return ConvexHull(points).vertices.tolist()
+
+
+def _engine_agrees() -> bool:
+    """Whether `_Qhull` is there and answers as ConvexHull does (a private class)."""
+    if _Qhull is None:
+        return False
+    square = np.array([(0.0, 0.0), (2.0, 0.0), (1.0, 1.0), (2.0, 2.0), (0.0, 2.0), (1.0, 3.0)])
+    try:
+        qhull = _Qhull(b"i", square, b"", required_options=b"Qt")
+        try:
+            got = qhull.get_extremes_2d().tolist()
+        finally:
+            qhull.close()
+    except Exception:  # noqa: BLE001 - any change of the private API means: don't use it
+        return False
+    return got == ConvexHull(square).vertices.tolist()
+
+
+_engine_ok = _engine_agrees()
 
 
 def _unique(points: Sequence[Sequence[float]]) -> np.ndarray:
@@ -265,7 +309,7 @@ def _qhull_cell(me: Point, others: list[Point], polygon: list[Point]) -> list[Po
         duals.append((ax / d, ay / d))
         x0, y0 = x1, y1
     try:
-        order = ConvexHull(np.array(duals)).vertices.tolist()  # counter-clockwise in 2-D
+        order = hull_vertices(np.array(duals))  # counter-clockwise in 2-D
     except (QhullError, ValueError):
         return None
     cell = []

@@ -210,3 +210,41 @@ def test_inside_hull_counts_edges_and_corners_in() -> None:
     for _ in range(500):
         p = (rng.uniform(-12, 12), rng.uniform(-12, 12))
         assert vor.inside_hull(hexagon, p) == vor.contains(hexagon, p)
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(
+    points=st.lists(
+        st.tuples(
+            st.floats(-5, 5, allow_nan=False).map(lambda v: round(v, 1)),  # ties and lines
+            st.floats(-5, 5, allow_nan=False).map(lambda v: round(v, 1)),
+        ),
+        min_size=1,
+        max_size=25,
+    )
+)
+def test_hull_vertices_are_convex_hulls(points: list[tuple[float, float]]) -> None:
+    """The hot path's hull (Qhull's engine, driven directly) is ConvexHull's, errors too."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    arr = np.array(points)
+    try:
+        expected: object = ConvexHull(arr).vertices.tolist()
+    except (QhullError, ValueError) as e:
+        expected = type(e)
+    try:
+        got: object = vor.hull_vertices(arr)
+    except (QhullError, ValueError) as e:
+        got = type(e)
+    assert got == expected
+
+
+def test_without_the_engine_convex_hull_serves(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A scipy whose private engine fails the import check gets the same hulls."""
+    rng = np.random.default_rng(5)
+    arr = rng.uniform(-1.0, 1.0, (20, 2))
+    fast = vor.hull_vertices(arr)
+    monkeypatch.setattr(vor, "_engine_ok", False)
+    assert vor.hull_vertices(arr) == fast
+    monkeypatch.setattr(vor, "_Qhull", None)
+    assert not vor._engine_agrees()
