@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from fieldkit import geo, polygon
 from fieldkit.profiles import Profile
@@ -45,9 +46,10 @@ HEARTBEAT_LOST = "autopilot heartbeat lost"
 RESEND_S = 5.0
 
 
-@dataclass(frozen=True)
-class Order:
-    """What the vehicle is told this tick: kind and, for "goto"/"takeoff", its numbers."""
+class Order(NamedTuple):
+    """What the vehicle is told this tick: kind and, for "goto"/"takeoff", its numbers.
+
+    A named tuple (immutable, hashable): one is made every tick a vehicle moves."""
 
     kind: str  # "goto" (north, east, alt), "takeoff" (alt), "land", "rtl", "hold", "arm", "disarm"
     args: tuple[float, ...] = ()
