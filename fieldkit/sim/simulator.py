@@ -150,7 +150,19 @@ class _AirBytes(bytes):
 class SimRobot:
     """One simulated robot: its VM and script API, its vehicle, what it hears."""
 
-    __slots__ = ("id", "vm", "api", "vehicle", "heard", "error", "state", "log", "home", "safety")
+    __slots__ = (
+        "id",
+        "vm",
+        "api",
+        "vehicle",
+        "heard",
+        "error",
+        "state",
+        "log",
+        "home",
+        "safety",
+        "sensors",
+    )
 
     def __init__(self, rid: int, vm: bvm.VM, api: ScriptAPI, vehicle: Vehicle) -> None:
         self.id = rid
@@ -163,6 +175,7 @@ class SimRobot:
         self.log: list[str] = []
         self.home = (vehicle.x, vehicle.y)
         self.safety: Supervisor | None = None
+        self.sensors = Sensors(lat=0.0, lon=0.0, alt=0.0, north=0.0, east=0.0)  # this tick's
 
 
 class Simulation:
@@ -214,7 +227,7 @@ class Simulation:
                 api.install()
                 for name, value in config.globals.items():
                     vm[name] = value
-                api.before_step(self._sensors(robot, 0, None), [])
+                api.before_step(self._sensors(robot, None), [])
                 vm.execute()
                 if vm.gload("init") is not None:
                     vm.call("init")
@@ -242,28 +255,31 @@ class Simulation:
 
     # ------------------------------------------------------------ one tick
 
-    def _sensors(self, robot: SimRobot, tick: int, rc: RcCommand | None) -> Sensors:
+    def _sensors(self, robot: SimRobot, rc: RcCommand | None) -> Sensors:
+        """The robot's sensors this tick, in the one Sensors it keeps (rewritten each tick:
+        nobody holds on to last tick's, and a swarm would otherwise make one per robot)."""
         v = robot.vehicle
-        lat, lon, alt = self.frame.to_gps(v.x, v.y, v.z)
-        return Sensors(
-            lat=lat,
-            lon=lon,
-            alt=v.z,
-            north=v.y,
-            east=v.x,
-            yaw=v.yaw,
-            voltage=v.voltage,
-            current=0.0,
-            battery_percent=int(v.battery_percent),
-            status=v.status,
-            armed=v.armed,
-            rc_cmd=rc.code if rc is not None else 0,
-            rc_goto=(
+        s = robot.sensors
+        s.lat, s.lon = geo.offset_gps(self.frame.lat, self.frame.lon, v.y, v.x)
+        s.alt = v.z
+        s.north = v.y
+        s.east = v.x
+        s.yaw = v.yaw
+        s.voltage = v.voltage
+        s.battery_percent = int(v.battery_percent)
+        s.status = v.status
+        s.armed = v.armed
+        if rc is None:
+            s.rc_cmd = 0
+            s.rc_goto = None
+        else:
+            s.rc_cmd = rc.code
+            s.rc_goto = (
                 (int(rc.params[0]), rc.params[1], rc.params[2], rc.params[3])
-                if rc is not None and rc.code == 16
+                if rc.code == 16
                 else None
-            ),
-        )
+            )
+        return s
 
     def step(self) -> None:
         """Advance every robot by one tick."""
@@ -304,7 +320,7 @@ class Simulation:
         neighbors = self._neighbors(t)
         for robot in robots.values():
             # 2. sensors
-            sensors = self._sensors(robot, t, rcs.get(robot.id))
+            sensors = self._sensors(robot, rcs.get(robot.id))
             commands: list[Command] = []
             vm = robot.vm
             if robot.error is None:
