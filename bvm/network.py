@@ -154,6 +154,12 @@ class Network:
         swarms.age()
         stigmergies.end_step()
 
+    def age(self) -> None:
+        """`process_inbox` with nothing received: the swarm records and the stigmergies'
+        forwarding memory still age by one step."""
+        self.vm.swarms.age()
+        self.vm.stigmergies.end_step()
+
     def _dropped(self, sender: int, e: wire.DecodeError) -> None:
         self.stats["decode_errors"] += 1
         n = self.stats["decode_errors"]

@@ -449,7 +449,7 @@ class VM:
         if not self.net.inbox:
             # Nothing received: no listener can run, so no budget or error handling to
             # set up (most steps of a quiet swarm); the swarm records still age.
-            self.net.process_inbox()
+            self.net.age()
             return
         self._run(self.net.process_inbox)
 

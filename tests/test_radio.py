@@ -187,9 +187,10 @@ def test_receptions_group_each_broadcast_with_its_receivers() -> None:
         for radio in (grouped, flat):
             radio.set_positions(cluster(8))
             for sender in range(9):
-                radio.broadcast(t, sender, bytes([t, sender]))
-        for sender, data, where, receivers in grouped.receptions(t):
+                radio.broadcast(t, sender, bytes([t, sender]), note=(t, sender))
+        for sender, data, where, receivers, note in grouped.receptions(t):
             assert receivers == sorted(receivers) and sender not in receivers
+            assert note == tuple(data)  # what the sender attached, with its broadcast
             got_grouped += [(r, sender, data, where) for r in receivers]
         got_flat += flat.deliveries(t)
     assert got_grouped == got_flat and len(got_flat) > 500

@@ -22,7 +22,8 @@ Two interfaces share the model:
 
 * per tick, `set_positions(positions)`, then `broadcast(step, sender, data)` once per
   sender (one opaque bundle, e.g. `fieldkit.bundle.encode`), then `receptions(step)` gives
-  each broadcast with the robots receiving it, (sender, data, sender_position, receivers),
+  each broadcast with the robots receiving it, (sender, data, sender_position, receivers,
+  note),
   or `deliveries(step)` one (receiver, sender, data, sender_position) tuple per reception;
 * `transmit(step, sender, payloads, positions)` / `arrivals(step)`, the per-message
   interface of `fieldkit.sim.harness`.
@@ -54,8 +55,9 @@ from scipy.spatial import cKDTree
 Position = tuple[float, float, float]  # metres in a local frame: x east, y north, z up
 #: One delivery: (receiver, sender, data, the sender's position when it sent).
 Delivery = tuple[int, int, bytes, Position]
-#: One broadcast as it arrives: (sender, data, sender's position, the receivers by id).
-Reception = tuple[int, bytes, Position, list[int]]
+#: One broadcast as it arrives: (sender, data, sender's position, the receivers by id,
+#: the sender's note: anything it attached to the broadcast, e.g. what it encoded).
+Reception = tuple[int, bytes, Position, list[int], object]
 
 _CANDIDATE_MARGIN = 1.0 + 1e-9
 
@@ -202,6 +204,7 @@ class Radio:
         self.bytes_sent: dict[int, int] = {}  # robot -> bytes put on the air, all steps
         self._positions: dict[int, Position] = {}
         self._everyone: list[tuple[int, Position]] = []  # (id, position) by id
+        self._points = np.empty((0, 3))  # the positions of _everyone, in order
         self._tree: cKDTree | None = None
         self._heard_by: dict[int, list[int]] | None = None  # robot -> candidate indices
         self._grid_source: tuple[int, int] | None = None  # (id(positions), step) of transmit
@@ -220,12 +223,14 @@ class Radio:
 
     def set_positions(self, positions: Mapping[int, Position]) -> None:
         """Where every robot is this tick (call once per tick, before the broadcasts)."""
+        everyone = sorted(positions.items())
+        points = np.array([p for _, p in everyone], dtype=np.float64).reshape(-1, 3)
+        if not np.isfinite(points).all():
+            rid, p = everyone[int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])]
+            raise ValueError(f"robot {rid} has a non-finite position {p}")
         self._positions = dict(positions)
-        self._everyone = sorted(self._positions.items())
-        isfinite = math.isfinite
-        for rid, p in self._everyone:
-            if not (isfinite(p[0]) and isfinite(p[1]) and isfinite(p[2])):
-                raise ValueError(f"robot {rid} has a non-finite position {p}")
+        self._everyone = everyone
+        self._points = points
         self._grid_source = None
         self._tree = None  # built on the first question of the tick
         self._heard_by = None
@@ -233,7 +238,7 @@ class Radio:
     def _candidates(self) -> cKDTree | None:
         """The k-d tree of this tick's positions (None when the range is unbounded)."""
         if self._tree is None and self._everyone and math.isfinite(self.model.range_m):
-            self._tree = cKDTree([p for _, p in self._everyone])
+            self._tree = cKDTree(self._points)
         return self._tree
 
     def _within(self, position: Position, exclude: int | None, near: Sequence[int]) -> list[int]:
@@ -397,13 +402,20 @@ class Radio:
     # ------------------------------------------------------------------ one bundle a tick
 
     def broadcast(
-        self, step: int, sender: int, data: bytes, position: Position | None = None
+        self,
+        step: int,
+        sender: int,
+        data: bytes,
+        position: Position | None = None,
+        note: object = None,
     ) -> None:
         """Put `data` on the air from `sender` at `step`, heard from `position`.
 
         The hearers are the robots of the last set_positions within range of `position`
-        (default: the sender's position there); every delivery carries it. Raises ValueError
-        beyond the sender's bandwidth (nothing sent), RuntimeError before any set_positions.
+        (default: the sender's position there); every delivery carries it, and each
+        reception the `note` (not on the air: e.g. the decoded form of `data`, so that
+        receivers need not parse it). Raises ValueError beyond the sender's bandwidth
+        (nothing sent), RuntimeError before any set_positions.
         """
         if not self._everyone:
             # Without positions nobody would hear anything: a silent trap, so refuse.
@@ -425,7 +437,7 @@ class Radio:
         due = step + model.latency
         if not model.jitter:
             if kept:
-                self._bucket(due).append((sender, data, position, kept))
+                self._bucket(due).append((sender, data, position, kept, note))
             return
         rnd = self.rng.random
         span = model.jitter + 1
@@ -434,7 +446,7 @@ class Radio:
             slots[int(rnd() * span)].append(r)
         for k, receivers in enumerate(slots):
             if receivers:
-                self._bucket(due + k).append((sender, data, position, receivers))
+                self._bucket(due + k).append((sender, data, position, receivers, note))
 
     def _bucket(self, due: int) -> list[Reception]:
         bucket = self._buckets.get(due)
@@ -445,7 +457,7 @@ class Radio:
 
     def receptions(self, step: int) -> list[Reception]:
         """Pop every broadcast due by `step` with the robots receiving it then, in send order:
-        (sender, data, sender_position, receivers by id). Do not modify the lists."""
+        (sender, data, sender_position, receivers by id, note). Do not modify the lists."""
         due = self._due
         if not due or due[0] > step:
             return []
@@ -458,7 +470,7 @@ class Radio:
 
     def deliveries(self, step: int) -> list[Delivery]:
         """Pop every (receiver, sender, data, sender_position) due by `step`, in send order."""
-        return [(r, s, d, p) for s, d, p, receivers in self.receptions(step) for r in receivers]
+        return [(r, s, d, p) for s, d, p, receivers, _ in self.receptions(step) for r in receivers]
 
     @property
     def in_flight(self) -> int:

@@ -141,12 +141,6 @@ class SimConfig:
                 raise ConfigError(f"--command for robot {c.robot}: robots are 1..{self.robots}")
 
 
-class _AirBytes(bytes):
-    """A bundle's bytes on the air, carrying what its sender put in it."""
-
-    sent: tuple[int, tuple[bytes, ...]] | None = None
-
-
 class SimRobot:
     """One simulated robot: its VM and script API, its vehicle, what it hears."""
 
@@ -287,8 +281,8 @@ class Simulation:
         robots = self.robots
         # 1. radio in
         reparse = self.config.decode_bundles
-        for sender, data, pos, receivers in self.radio.receptions(t):
-            got = None if reparse else data.sent  # type: ignore[attr-defined]
+        for sender, data, pos, receivers, sent in self.radio.receptions(t):
+            got = None if reparse else sent
             if got is None:
                 try:
                     b = wirebundle.decode(data)
@@ -390,16 +384,15 @@ class Simulation:
 
     def _send(self, robot: SimRobot, s: Sensors, messages: list[bytes]) -> None:
         # The drained outbox fits a bundle by construction: no Bundle to build and check.
-        data = _AirBytes(
-            wirebundle.encode_fields(robot.id, messages, s.lat, s.lon, s.alt, self.tick)
-        )
-        # The real bytes travel (and are counted); receivers may skip re-parsing them.
-        data.sent = (robot.id, tuple(messages))
+        data = wirebundle.encode_fields(robot.id, messages, s.lat, s.lon, s.alt, self.tick)
         size = wirebundle.block_size(messages)
-        self.max_bundle = max(self.max_bundle, size)
+        if size > self.max_bundle:
+            self.max_bundle = size
         self.total_bundle += size
         self.bundles += 1
-        self.radio.broadcast(self.tick, robot.id, data)
+        # The real bytes travel (and are counted); the note of what they hold spares the
+        # receivers parsing them again.
+        self.radio.broadcast(self.tick, robot.id, data, note=(robot.id, tuple(messages)))
 
     def _actuate(self, robot: SimRobot, commands: list[Command]) -> None:
         """The script's commands through the safety supervisor, one order to the vehicle."""
