@@ -928,6 +928,14 @@ class _Codegen:
                 self.emit(f"{t} = {av} // {bv} if {av} >= 0 else -(-{av} // {bv})", at)
             self.push(t, INT)
             return
+        if op is Op.MOD and ta in (INT, ANY) and tb in (INT, ANY):
+            # The same for ints known only at run time (`COUNTER % PERIOD`, every step of
+            # most scripts); anything else takes the full rule.
+            test = self.int_test(a, b)
+            cond = f"{bv} > 0" if test == "True" else f"{test} and {bv} > 0"
+            self.emit(f"{t} = ({av} % {bv}) if {cond} else _mod({av}, {bv})", at)
+            self.push(t, INT if ta == INT and tb == INT else ANY)
+            return
         if ta == FLOAT and tb == FLOAT and op is Op.DIV and b.const not in (None, 0.0):
             self.emit(f"_F[0] = {av} / {bv}", at)
             self.emit(f"{t} = _F[0]", at)
@@ -977,6 +985,12 @@ class _Codegen:
             return
         if equality and ta != ANY and tb != ANY and NIL in (ta, tb):
             self.push("False" if ins.op is Op.EQ else "True", BOOL)
+            return
+        if equality and NIL in (ta, tb) and ANY in (ta, tb):
+            # Only nil equals nil (Buzz compares everything but numbers and strings by
+            # identity): an identity test that cannot fail.
+            unknown = av if ta == ANY else bv
+            self.stack.append(_Expr(f"({unknown} is {'not ' * (ins.op is Op.NEQ)}None)", BOOL))
             return
         t = self.temp()
         if equality and ANY in (ta, tb):

@@ -554,3 +554,42 @@ def test_indexing_a_negative_literal_is_a_type_error(literal: str) -> None:
         vm.load(program)
         with pytest.raises(bvm.BuzzError, match="type mismatch"):
             vm.execute()
+
+
+def test_remainders_of_run_time_values() -> None:
+    """`a % b` of values whose types are known only at run time: the int fast path (a
+    positive divisor) and the full rule (negative or zero divisors, floats, strings)."""
+    src = (
+        "function m(t) { return t.a % t.b }\n"
+        "function all() {\n"
+        "  var cases = {.0 = {.a = 7, .b = 3}, .1 = {.a = -7, .b = 3}, .2 = {.a = 7, .b = -3},\n"
+        "    .3 = {.a = -7, .b = -3}, .4 = {.a = 0, .b = 5}, .5 = {.a = 2147483647, .b = 2},\n"
+        "    .6 = {.a = -2147483648, .b = 7}, .7 = {.a = 7.5, .b = 2}, .8 = {.a = 7, .b = 2.5},\n"
+        "    .9 = {.a = -7.5, .b = 2.0}}\n"
+        "  var i = 0\n"
+        "  while (i < 10) { log(m(cases[i]))  i = i + 1 }\n"
+        "  log(m({.a = 7, .b = 0}))\n"
+        "}\n"
+    )
+    lines, outcome = both(src, "all")
+    assert lines[:7] == ["1", "2", "1", "-4", "0", "1", "5"]  # the reference's rule
+    assert outcome[0] == "error" and "division by zero" in outcome[1]
+    _, outcome = both('function m(a, b) { return a % b }\nm("x", 2)\n')
+    assert outcome[0] == "error"
+
+
+def test_comparisons_with_nil_of_every_kind_of_value() -> None:
+    """`x == nil` and `x != nil` for values of unknown type: only nil is nil (0, "", 0.0,
+    tables and closures are not)."""
+    src = (
+        "function isn(t, k) { return t[k] == nil }\n"
+        "function nn(t, k) { return nil != t[k] }\n"
+        "function all() {\n"
+        '  var t = {.i = 0, .f = 0.0, .s = "", .t = {}, .c = function() {}}\n'
+        '  var keys = {.0 = "i", .1 = "f", .2 = "s", .3 = "t", .4 = "c", .5 = "absent"}\n'
+        "  var k = 0\n"
+        "  while (k < 6) { log(isn(t, keys[k]), nn(t, keys[k]))  k = k + 1 }\n"
+        "}\n"
+    )
+    lines, _ = both(src, "all")
+    assert lines == ["01", "01", "01", "01", "01", "10"]
