@@ -56,7 +56,10 @@ class Inbox:
         by_sender = self._by_sender
         if not by_sender:
             return []
-        senders = sorted(by_sender, key=lambda s: s % BUCKETS)  # stable: arrival order
         self._by_sender = {}
         self._count = 0
+        if len(by_sender) == 1:  # one sender this step (the common case): no order to find
+            [(sender, payloads)] = by_sender.items()
+            return [(sender, payload) for payload in reversed(payloads)]
+        senders = sorted(by_sender, key=BUCKETS.__rmod__)  # s % BUCKETS; stable: arrival order
         return [(sender, payload) for sender in senders for payload in reversed(by_sender[sender])]

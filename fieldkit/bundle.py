@@ -146,7 +146,7 @@ def _check_messages(messages: Sequence[bytes]) -> None:
 
 def block_size(messages: Sequence[bytes]) -> int:
     """Bytes of bundle content (header + prefixed messages, no padding): what 190 limits."""
-    return BUNDLE_HEADER + sum(MSG_OVERHEAD + len(m) for m in messages)
+    return BUNDLE_HEADER + MSG_OVERHEAD * len(messages) + sum(map(len, messages))
 
 
 def air_size(messages: Sequence[bytes]) -> int:
