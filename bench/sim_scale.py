@@ -1,6 +1,6 @@
 """The largest swarm the simulator runs at real time on one core, with the coverage behavior.
 
-    python bench/sim_scale.py [--sizes 500,750,1000] [--measure 7]
+    python bench/sim_scale.py [--sizes 750,1000,1250] [--measure 7]
 
 Real time: 10 ticks per simulated second for every robot, so a swarm of N robots runs at
 real time when one tick of all N robots takes at most 0.1 s. For each size the robots take
@@ -116,7 +116,7 @@ def ticks_per_second(robots: int, measure_s: float) -> tuple[float, float, float
 def main() -> None:
     """Measure each size and print the largest real-time swarm."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sizes", default="500,750,1000")
+    ap.add_argument("--sizes", default="750,1000,1250")
     ap.add_argument(
         "--measure", type=float, default=7.0, help="simulated seconds measured (1 s windows)"
     )
