@@ -163,7 +163,9 @@ class SimRobot:
         self.vm = vm
         self.api = api
         self.vehicle = vehicle
-        self.heard: dict[int, tuple[float, float, int]] = {}  # sender -> (lat, lon, tick)
+        self.heard: dict[
+            int, tuple[float, float, int]
+        ] = {}  # sender -> (x, y, tick) it was heard from
         self.error: str | None = None
         self.state: str | None = None
         self.log: list[str] = []
