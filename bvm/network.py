@@ -151,8 +151,7 @@ class Network:
         finally:
             # Counted even when a listener's error ends the step early.
             self.stats["received"] += received
-        swarms.age()
-        stigmergies.end_step()
+        self.age()
 
     def age(self) -> None:
         """`process_inbox` with nothing received: the swarm records and the stigmergies'

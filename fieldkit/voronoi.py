@@ -51,12 +51,17 @@ def hull_vertices(points: np.ndarray) -> list[int]:
     scipy where that does not work as checked at import gets ConvexHull.
     """
     if _engine_ok:
-        qhull = _Qhull(b"i", points, b"", required_options=b"Qt")
-        try:
-            return qhull.get_extremes_2d().tolist()
-        finally:
-            qhull.close()
+        return _engine_hull(points)
     return ConvexHull(points).vertices.tolist()
+
+
+def _engine_hull(points: np.ndarray) -> list[int]:
+    """`hull_vertices` by `_Qhull`, as ConvexHull drives it (its mode and options)."""
+    qhull = _Qhull(b"i", points, b"", required_options=b"Qt")
+    try:
+        return qhull.get_extremes_2d().tolist()
+    finally:
+        qhull.close()
 
 
 def _engine_agrees() -> bool:
@@ -65,11 +70,7 @@ def _engine_agrees() -> bool:
         return False
     square = np.array([(0.0, 0.0), (2.0, 0.0), (1.0, 1.0), (2.0, 2.0), (0.0, 2.0), (1.0, 3.0)])
     try:
-        qhull = _Qhull(b"i", square, b"", required_options=b"Qt")
-        try:
-            got = qhull.get_extremes_2d().tolist()
-        finally:
-            qhull.close()
+        got = _engine_hull(square)
     except Exception:  # noqa: BLE001 - any change of the private API means: don't use it
         return False
     return got == ConvexHull(square).vertices.tolist()

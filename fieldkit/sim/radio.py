@@ -23,8 +23,8 @@ Two interfaces share the model:
 * per tick, `set_positions(positions)`, then `broadcast(step, sender, data)` once per
   sender (one opaque bundle, e.g. `fieldkit.bundle.encode`), then `receptions(step)` gives
   each broadcast with the robots receiving it, (sender, data, sender_position, receivers,
-  note),
-  or `deliveries(step)` one (receiver, sender, data, sender_position) tuple per reception;
+  note), or `deliveries(step)` one (receiver, sender, data, sender_position) tuple per
+  reception;
 * `transmit(step, sender, payloads, positions)` / `arrivals(step)`, the per-message
   interface of `fieldkit.sim.harness`.
 
@@ -200,13 +200,13 @@ class Radio:
         self.sent = 0  # packets sent (a payload or a broadcast counts once, not per hearer)
         self.delivered = 0  # receptions handed out by arrivals() and deliveries()
         self.dropped = 0  # receptions lost on their link
-        self.distance_checks = 0  # distances computed to find hearers (the grid's work)
+        self.distance_checks = 0  # distances computed to find hearers (the tree's candidates)
         self.bytes_sent: dict[int, int] = {}  # robot -> bytes put on the air, all steps
         self._positions: dict[int, Position] = {}
         self._everyone: list[tuple[int, Position]] = []  # (id, position) by id
         self._points = np.empty((0, 3))  # the positions of _everyone, in order
         self._tree: cKDTree | None = None
-        self._heard_by: dict[int, list[int]] | None = None  # robot -> candidate indices
+        self._heard_by: dict[int, list[int]] | None = None  # robot -> its hearers, by id
         self._grid_source: tuple[int, int] | None = None  # (id(positions), step) of transmit
         self._buckets: dict[int, list[Reception]] = {}  # due step -> receptions, in send order
         self._due: list[int] = []  # heap of the keys of _buckets

@@ -163,9 +163,8 @@ class SimRobot:
         self.vm = vm
         self.api = api
         self.vehicle = vehicle
-        self.heard: dict[
-            int, tuple[float, float, int]
-        ] = {}  # sender -> (x, y, tick) it was heard from
+        # sender -> (x, y, tick) it was last heard from
+        self.heard: dict[int, tuple[float, float, int]] = {}
         self.error: str | None = None
         self.state: str | None = None
         self.log: list[str] = []
