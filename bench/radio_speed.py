@@ -18,7 +18,7 @@ import math
 import random
 import time
 
-from fieldkit.sim.radio import LinkModel, Radio
+from fieldkit.sim.radio import LinkModel, RadioModel
 
 RANGE = 50.0
 
@@ -28,7 +28,7 @@ def run(n: int, model: LinkModel, ticks: int, neighbors: float, seed: int) -> tu
     rng = random.Random(seed)
     side = RANGE * math.sqrt(math.pi * n / neighbors)
     pos = {i: (rng.uniform(0, side), rng.uniform(0, side), 0.0) for i in range(n)}
-    radio = Radio(model, seed)
+    radio = RadioModel(model, seed)
     data = bytes(120)
     # The robots' moves are made up front: only the radio's work is timed.
     frames = []

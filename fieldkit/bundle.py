@@ -56,7 +56,6 @@ BUNDLE_HEADER = 4
 #: The per-message cost beyond its bytes: its u16 length prefix (`overhead` for drain_outbox).
 MSG_OVERHEAD = 2
 #: Another name for MSG_OVERHEAD.
-PER_MESSAGE = MSG_OVERHEAD
 #: The `budget_bytes` for drain_outbox: the content limit less the header.
 MAX_BUZZ_BYTES = MAX_MSG_SIZE - BUNDLE_HEADER
 #: The longest Buzz message a bundle can carry (a longer one can never be sent).

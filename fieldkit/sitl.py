@@ -33,6 +33,7 @@ from fieldkit import geo
 from fieldkit.autopilot.vehicle_sim import DEFAULT_HOME, PtyPair, SimVehicle, open_pty
 from fieldkit.profiles import Profile
 from fieldkit.radio.xbee import FrameReader, TransmitRequest, receive_packet
+from fieldkit.robot.rc import RcCommand
 
 #: Where robot i's XBee serial numbers start (Digi's OUI prefix, as real modules have).
 SERIAL_BASE = 0x0013A20000000000
@@ -126,7 +127,7 @@ class SitlConfig:
     range_m: float = 500.0
     seconds: float = 60.0
     seed: int = 0
-    commands: Sequence[tuple[float, int, int]] = ()  # (t, robot, code)
+    commands: Sequence[RcCommand] = ()
     include_dirs: Sequence[str] = ()
     spacing_m: float = 4.0
     home: tuple[float, float] = DEFAULT_HOME
@@ -180,9 +181,10 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
                 *(a for d in cfg.include_dirs for a in ("-I", d)),
                 *cfg.extra,
             ]
-            for t, rid, code in cfg.commands:
-                if rid == r.id:
-                    argv += ["--command", f"{t:g}:{code}"]
+            for c in cfg.commands:
+                if c.robot == r.id:
+                    # The node is one robot: T:CODE, with the parameters (a waypoint's).
+                    argv += ["--command", c.text(with_robot=False)]
             r.log = (r.out / "log.txt").open("wb")
             r.process = subprocess.Popen(argv, stdout=r.log, stderr=subprocess.STDOUT)
         start = time.monotonic()

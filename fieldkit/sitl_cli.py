@@ -25,7 +25,7 @@ def sitl_cmd(
     ] = None,
     command: Annotated[
         list[str] | None,
-        typer.Option("--command", help="T:ROBOT:CODE: a remote-control code at second T."),
+        typer.Option("--command", help="T:ROBOT:CODE[:P...]: a remote-control code at second T."),
     ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the radio's drops.")] = 0,
 ) -> None:
@@ -46,16 +46,18 @@ def sitl_cmd(
         prof = load_profile(profile)
     except (ProfileError, OSError) as e:
         raise _fail(str(e)) from None
+    from fieldkit.errors import ConfigError
+    from fieldkit.robot.rc import RcCommand
+
     commands = []
     for text in command or []:
-        parts = text.split(":")
         try:
-            t, rid, code = float(parts[0]), int(parts[1]), int(parts[2])
-        except (ValueError, IndexError):
-            raise _fail(f"--command {text!r}: expected T:ROBOT:CODE, e.g. 5:1:900") from None
-        if not 1 <= rid <= robots:
+            c = RcCommand.parse(text)
+        except ConfigError as e:
+            raise _fail(str(e)) from None
+        if not 1 <= c.robot <= robots:
             raise _fail(f"--command {text!r}: robots are 1..{robots}")
-        commands.append((t, rid, code))
+        commands.append(c)
     dirs = [str(d) for d in include or []] or [str(script.resolve().parent)]
     cfg = SitlConfig(
         script=script.resolve(),

@@ -13,13 +13,13 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from harness import Harness
 
 import bvm
 from bvm.values import f32, format_value
 from fieldkit import geo, shapes
 from fieldkit import voronoi as vor
 from fieldkit.sim import simulator as sim_mod
-from fieldkit.sim.harness import Harness
 from fieldkit.sim.radio import LinkModel
 
 SCRIPTS = Path(__file__).resolve().parent.parent / "buzz_scripts"

@@ -6,10 +6,10 @@ import math
 
 import pytest
 from buzzhost import hexes, make_robot
+from harness import Harness, line
 
 import bvm
 from bvm import wire
-from fieldkit.sim.harness import Harness, line
 from fieldkit.sim.radio import LinkModel
 
 BOTH = pytest.mark.parametrize("translate", [True, False], ids=["translated", "interpreted"])

@@ -15,7 +15,8 @@ import pytest
 import bvm
 from fieldkit.autopilot.vehicle_sim import SimRig
 from fieldkit.node.autopilot_port import MavlinkAutopilot
-from fieldkit.node.runtime import Node, ScheduledCommand
+from fieldkit.node.node import Node
+from fieldkit.robot.rc import RcCommand
 
 HOME = (45.5049, -73.6133)
 
@@ -56,7 +57,7 @@ def make_node(rig: SimRig, src: str, lines: list[str], **globals_: object) -> No
         MavlinkAutopilot(rig.link, home),  # type: ignore[arg-type]
         None,
         home=home,  # type: ignore[arg-type]
-        commands=[ScheduledCommand(0.5, 22)],
+        commands=[RcCommand(0.5, 3, 22)],
         clock=rig.clock,
         out=lines.append,
     )
@@ -116,10 +117,10 @@ def test_heartbeat_loss_lands_once_the_link_is_back(rig: SimRig) -> None:
     lines: list[str] = []
     node = make_node(rig, FLY, lines)
     run(rig, node, 20.0)
-    assert node.state == "GO"
+    assert node.runtime.state == "GO"
     rig.sim.faults.heartbeats = False
     run(rig, node, 5.0)
-    assert node.supervisor.failsafe == "autopilot heartbeat lost"
+    assert node.runtime.supervisor.failsafe == "autopilot heartbeat lost"
     rig.sim.faults.heartbeats = True
     run(rig, node, 20.0)
     assert rig.sim.vehicle.z == pytest.approx(0.0, abs=0.1)  # landed
@@ -177,7 +178,7 @@ def test_two_nodes_hear_each_other_over_the_udp_radio() -> None:
                 node.tick()
                 r.tick()
         for node, other in zip(nodes, (2, 1), strict=True):
-            assert node.vm["heard"] == other and node.vm["seen"] == 1
+            assert node.runtime.vm["heard"] == other and node.runtime.vm["seen"] == 1
             s = node.summary()
             assert s["radio_frames_in"] > 20 and s["radio_frames_out"] == 40
     finally:

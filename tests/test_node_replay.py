@@ -17,7 +17,7 @@ from bvm.values import f32
 from fieldkit.autopilot.link import Autopilot
 from fieldkit.autopilot.vehicle_sim import open_pty
 from fieldkit.node.autopilot_port import MavlinkAutopilot
-from fieldkit.node.runtime import Node
+from fieldkit.node.node import Node
 from fieldkit.profiles import load_profile
 
 TLOGS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tlogs"
@@ -103,7 +103,7 @@ def test_a_real_flight_shows_in_the_script_globals() -> None:
             node.tick()
             if expected.pos is None or expected.volts is None:
                 continue
-            seen = node.vm["seen"]
+            seen = node.runtime.vm["seen"]
             lat, lon, alt = expected.pos
             assert (seen["lat"], seen["lon"]) == (f32(lat), f32(lon))
             assert seen["alt"] == pytest.approx(alt, abs=1e-3)

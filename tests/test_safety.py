@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import pytest
 
 from fieldkit import geo
 from fieldkit.profiles import Geofence, load_profile
-from fieldkit.safety import Order, Supervisor, VehicleState
-from fieldkit.script_api import Command
+from fieldkit.robot.safety import Order, Supervisor
+from fieldkit.robot.script_api import IN_AIR, ON_GROUND, Command, Sensors
 
 FRAME = geo.LocalFrame(45.5, -73.6, 0.0)
 
@@ -24,10 +25,13 @@ def fenced_solo(half: float = 50.0) -> Supervisor:
     return Supervisor(profile, FRAME)
 
 
-def flying(**kw: float) -> VehicleState:
-    base = {"north": 0.0, "east": 0.0, "alt": 10.0, "flying": True, "battery_percent": 90.0}
+def flying(flying: bool = True, **kw: float) -> Sensors:
+    """What the supervisor sees of a vehicle: in the air at 10 m unless told otherwise."""
+    base: dict[str, Any] = {"lat": 0.0, "lon": 0.0, "north": 0.0, "east": 0.0, "alt": 10.0}
+    base["battery_percent"] = 90.0
+    base["status"] = IN_AIR if flying else ON_GROUND
     base.update(kw)
-    return VehicleState(**base)  # type: ignore[arg-type]
+    return Sensors(**base)
 
 
 def test_goto_is_followed_with_a_speed_limited_carrot() -> None:

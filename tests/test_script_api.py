@@ -7,7 +7,7 @@ import pytest
 import bvm
 from fieldkit import geo
 from fieldkit.polygon import inside, segment_exit
-from fieldkit.script_api import Command, ScriptAPI, Sensors
+from fieldkit.robot.script_api import Command, ScriptAPI, Sensors
 
 HERE = (45.5, -73.6)
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from fieldkit.robot.neighbors import NEIGHBOR_TIMEOUT_S
 from fieldkit.sim.simulator import (
-    NEIGHBOR_TIMEOUT_S,
     TICK_S,
     ConfigError,
     RcCommand,

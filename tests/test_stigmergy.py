@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import pytest
 from buzzhost import hexes, make_robot
+from harness import Harness, line
 
 import bvm
 from bvm import wire
 from bvm.stdlib.stigmergy import bucket
-from fieldkit.sim.harness import Harness, line
 from fieldkit.sim.radio import LinkModel
 
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 from buzzhost import hexes, make_robot
+from harness import Harness, line
 
 import bvm
 from bvm import wire
-from fieldkit.sim.harness import Harness, line
 from fieldkit.sim.radio import LinkModel
 
 

@@ -7,9 +7,9 @@ import logging
 
 from fieldkit import geo
 from fieldkit.autopilot.link import Autopilot
-from fieldkit.node.runtime import Telemetry
-from fieldkit.safety import Order
-from fieldkit.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
+from fieldkit.robot.safety import Order
+from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
+from fieldkit.robot.vehicle import Telemetry
 
 _log = logging.getLogger("fieldkit.node")
 
@@ -46,7 +46,6 @@ class MavlinkAutopilot:
             current=t.battery_current_a or 0.0,
             battery_percent=t.battery_percent if t.battery_percent is not None else 100.0,
             armed=t.armed,
-            flying=status != ON_GROUND,
             heartbeat_age_s=self.link.heartbeat_age(),
             rc_override=self.link.pilot_override,
             status=status,

@@ -23,23 +23,6 @@ def _fail(message: str) -> typer.Exit:
     return typer.Exit(1)
 
 
-def parse_command(text: str) -> object:
-    """`T:CODE[:P...]` for this robot (`fieldkit sim run` has T:ROBOT:CODE)."""
-    from fieldkit.node.runtime import ScheduledCommand
-
-    parts = text.split(":")
-    try:
-        if len(parts) < 2:
-            raise ValueError
-        t, code = float(parts[0]), int(parts[1])
-        params = tuple(float(p) for p in parts[2:])
-    except ValueError:
-        raise _fail(f"--command {text!r}: expected T:CODE[:PARAMS...], e.g. 5:22") from None
-    if t < 0:
-        raise _fail(f"--command {text!r}: time must be >= 0 seconds")
-    return ScheduledCommand(t, code, params)
-
-
 def robot_id_from(profile: object, given: int | None) -> int:
     """The robot id: --robot-id, else the profile's source (a value, or the hostname's digits)."""
     if given is not None:
@@ -86,7 +69,7 @@ def node_cmd(
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
     from fieldkit.autopilot.link import Autopilot, AutopilotError
     from fieldkit.node.autopilot_port import MavlinkAutopilot
-    from fieldkit.node.runtime import Node
+    from fieldkit.node.node import Node
     from fieldkit.profiles import ProfileError, load_profile
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -95,7 +78,13 @@ def node_cmd(
     except (ProfileError, OSError) as e:
         raise _fail(str(e)) from None
     rid = robot_id_from(prof, robot_id)
-    commands = [parse_command(c) for c in command or []]
+    from fieldkit.errors import ConfigError
+    from fieldkit.robot.rc import RcCommand
+
+    try:
+        commands = [RcCommand.parse(c, robot=rid) for c in command or []]
+    except ConfigError as e:
+        raise _fail(str(e)) from None
     try:
         if script.suffix == ".bo":
             program = bvm.Program.load(script)
@@ -132,7 +121,7 @@ def node_cmd(
         MavlinkAutopilot(link, home),
         link_radio,
         home=home,
-        commands=commands,  # type: ignore[arg-type]
+        commands=commands,
         out=say,
     )
     try:
@@ -140,11 +129,7 @@ def node_cmd(
     except KeyboardInterrupt:
         pass
     finally:
-        if node.vm.gload("destroy") is not None and node.script_ok:
-            try:
-                node.vm.call("destroy")
-            except bvm.BuzzError as e:
-                node.errors.append(str(e))
+        node.runtime.destroy()
         link.close()
         if link_radio is not None:
             link_radio.close()
@@ -153,5 +138,5 @@ def node_cmd(
         (out / "summary.json").write_text(
             json.dumps(node.summary(), indent=2, sort_keys=True) + "\n", encoding="utf-8"
         )
-    for err in node.errors:
-        typer.echo(err, err=True)
+    if node.runtime.error is not None:
+        typer.echo(node.runtime.error, err=True)

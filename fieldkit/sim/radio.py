@@ -18,35 +18,28 @@ drains its VM's outbox with; more raises ValueError), and every delivery is situ
 carries the sender's position at send time, so the receiver computes range and bearing
 from where the sender was, as ROSBuzz does from the packet's latitude and longitude.
 
-Two interfaces share the model:
-
-* per tick, `set_positions(positions)`, then `broadcast(step, sender, data)` once per
-  sender (one opaque bundle, e.g. `fieldkit.bundle.encode`), then `receptions(step)` gives
-  each broadcast with the robots receiving it, (sender, data, sender_position, receivers,
-  note), or `deliveries(step)` one (receiver, sender, data, sender_position) tuple per
-  reception;
-* `transmit(step, sender, payloads, positions)` / `arrivals(step)`, the per-message
-  interface of `fieldkit.sim.harness`.
+Per tick: `set_positions(positions)`, then `broadcast(step, sender, data)` once per sender
+(one opaque bundle, e.g. `fieldkit.bundle.encode`), then `receptions(step)` gives each
+broadcast with the robots receiving it, (sender, data, sender_position, receivers, note), or
+`deliveries(step)` one (receiver, sender, data, sender_position) tuple per reception.
 
 Speed, for thousands of robots: the hearers of every robot come from one query of a k-d
 tree (scipy's cKDTree) built once per tick for the pairs within range, checked and sorted
 in one numpy pass, so each sender costs about its own neighbours instead of all N; a
 broadcast is queued once with its receivers, in per-tick buckets.
 Reproducibility: every random draw comes from one `random.Random(seed)`, in a fixed order
-(the order of the broadcast/transmit calls; within a broadcast, the loss draws of the
-receivers by id, then the jitter draws of the survivors; within a transmit, per payload and
-receiver the loss draws then the jitter draw), so a run is bit for bit reproducible from its
+(the order of the broadcast calls; within a broadcast, the loss draws of the receivers by
+id, then the jitter draws of the survivors), so a run is bit for bit reproducible from its
 seed provided the caller sends in a fixed order (e.g. by robot id).
 """
 
 from __future__ import annotations
 
 import heapq
-import itertools
 import math
 import random
 from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -178,27 +171,14 @@ def distance(a: Position, b: Position) -> float:
     return math.dist(a, b)
 
 
-def bearing(origin: Position, target: Position) -> tuple[float, float]:
-    """(distance in the horizontal plane, azimuth) of `target` seen from `origin`.
-
-    Azimuth in radians from north, positive toward east, as ROSBuzz computes it (spec wire
-    §6.1); the field sees altitude only through the autopilot, so elevation is left to 0.
-    """
-    east = target[0] - origin[0]
-    north = target[1] - origin[1]
-    return math.hypot(east, north), math.atan2(east, north)
-
-
-class Radio:
+class RadioModel:
     """Carries packets between robots according to a `LinkModel`, reproducibly from `seed`."""
 
     def __init__(self, model: LinkModel, seed: int) -> None:
         self.model = model
         self.rng = random.Random(seed)
-        self._in_flight: list[tuple[int, int, int, int, bytes]] = []  # (due, seq, to, from, p)
-        self._seq = itertools.count()
         self.sent = 0  # packets sent (a payload or a broadcast counts once, not per hearer)
-        self.delivered = 0  # receptions handed out by arrivals() and deliveries()
+        self.delivered = 0  # receptions handed out by receptions() and deliveries()
         self.dropped = 0  # receptions lost on their link
         self.distance_checks = 0  # distances computed to find hearers (the tree's candidates)
         self.bytes_sent: dict[int, int] = {}  # robot -> bytes put on the air, all steps
@@ -207,7 +187,6 @@ class Radio:
         self._points = np.empty((0, 3))  # the positions of _everyone, in order
         self._tree: cKDTree | None = None
         self._heard_by: dict[int, list[int]] | None = None  # robot -> its hearers, by id
-        self._grid_source: tuple[int, int] | None = None  # (id(positions), step) of transmit
         self._buckets: dict[int, list[Reception]] = {}  # due step -> receptions, in send order
         self._due: list[int] = []  # heap of the keys of _buckets
         self._links: dict[int, dict[int, int]] = {}  # sender -> receiver -> 2 * tick + bad
@@ -231,7 +210,6 @@ class Radio:
         self._positions = dict(positions)
         self._everyone = everyone
         self._points = points
-        self._grid_source = None
         self._tree = None  # built on the first question of the tick
         self._heard_by = None
 
@@ -310,13 +288,6 @@ class Radio:
         return list(self._hearers_of(robot))
 
     # ------------------------------------------------------------------ losses
-
-    def _lost(self, step: int, sender: int, receiver: int) -> bool:
-        """Whether one packet from `sender` to `receiver` sent at `step` is lost (draws)."""
-        model = self.model
-        if model.bursts is None:
-            return bool(model.drop) and self.rng.random() < model.drop
-        return not self._survivors(step, sender, (receiver,))
 
     def _survivors(self, step: int, sender: int, hearers: Sequence[int]) -> list[int]:
         """The hearers whose link keeps a packet sent at `step`; draws in hearer order."""
@@ -474,47 +445,5 @@ class Radio:
 
     @property
     def in_flight(self) -> int:
-        """Deliveries queued and not yet due (both interfaces)."""
-        queued = sum(len(e[3]) for bucket in self._buckets.values() for e in bucket)
-        return queued + len(self._in_flight)
-
-    # ------------------------------------------------------------------ per-message interface
-
-    def transmit(
-        self,
-        step: int,
-        sender: int,
-        payloads: Iterable[bytes],
-        positions: Mapping[int, Position],
-    ) -> None:
-        """Send `payloads` from `sender` at `step` to everyone in range.
-
-        `positions` must not change within a step: its grid is built on the first call of
-        the step and reused by the other senders.
-        """
-        payloads = list(payloads)
-        self._account(step, sender, sum(map(len, payloads)))
-        if self._grid_source != (id(positions), step):
-            self.set_positions(positions)
-            self._grid_source = (id(positions), step)
-        model = self.model
-        rng = self.rng
-        hearers = self.hearers(positions[sender], sender)
-        for payload in payloads:
-            self.sent += 1
-            for r in hearers:
-                if self._lost(step, sender, r):
-                    self.dropped += 1
-                    continue
-                due = step + model.latency + (rng.randint(0, model.jitter) if model.jitter else 0)
-                heapq.heappush(self._in_flight, (due, next(self._seq), r, sender, payload))
-
-    def arrivals(self, step: int) -> list[tuple[int, int, bytes]]:
-        """Pop every (receiver, sender, payload) due at or before `step`, in send order."""
-        out = []
-        flight = self._in_flight
-        while flight and flight[0][0] <= step:
-            _, _, r, s, payload = heapq.heappop(flight)
-            out.append((r, s, payload))
-        self.delivered += len(out)
-        return out
+        """Deliveries queued and not yet due."""
+        return sum(len(e[3]) for bucket in self._buckets.values() for e in bucket)

@@ -22,7 +22,7 @@ import random
 from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Final, Literal, NamedTuple
 
 import bvm
 from bvm.errors import BuzzError
@@ -32,8 +32,13 @@ from fieldkit import geo, polygon
 #: storegoal refuses goals farther than this (ROSBuzz's rule, rosbuzz §3.5).
 MAX_GOAL_DISTANCE_M = 250.0
 
-#: flight.status codes (ROSBuzz, from mavros ExtendedState).
-ON_GROUND, IN_AIR, TAKING_OFF, LANDING = 1, 2, 3, 4
+#: flight.status codes (ROSBuzz, from mavros ExtendedState). Plain ints: they go into the VM.
+FlightStatus = Literal[1, 2, 3, 4]
+ON_GROUND: Final = 1
+IN_AIR: Final = 2
+TAKING_OFF: Final = 3
+LANDING: Final = 4
+FLIGHT_STATUSES: Final[tuple[FlightStatus, ...]] = (ON_GROUND, IN_AIR, TAKING_OFF, LANDING)
 
 #: V_TYPE values of ROSBuzz scripts.
 V_UAV, V_GROUND = 0, 2
@@ -41,7 +46,8 @@ V_UAV, V_GROUND = 0, 2
 
 @dataclass(slots=True)
 class Sensors:
-    """What the host knows about its vehicle this tick."""
+    """What the host knows about its vehicle this tick: the script's globals and the
+    supervisor's input come from here, and only from here."""
 
     lat: float
     lon: float
@@ -51,22 +57,32 @@ class Sensors:
     yaw: float = 0.0  # radians
     voltage: float = 0.0
     current: float = 0.0
-    battery_percent: int = 100
-    status: int = ON_GROUND
+    battery_percent: float = 100.0  # the script sees it as a whole number (`capacity`)
+    status: FlightStatus = ON_GROUND
     armed: bool = False
     rc_cmd: int = 0  # a remote-control code received this tick, else 0
     rc_goto: tuple[int, float, float, float] | None = None  # (id, lat, lon, alt) with code 16
+    heartbeat_age_s: float = 0.0  # since the autopilot was last heard (0 in simulation)
+    rc_override: bool = False  # the backup pilot has the vehicle
+
+    @property
+    def flying(self) -> bool:
+        """Whether the vehicle is off the ground (taking off, in the air or landing)."""
+        return self.status != ON_GROUND
 
 
-@dataclass(frozen=True)
-class Command:
+#: What a script can ask of its vehicle (`Command.kind`).
+CommandKind = Literal["takeoff", "land", "rtl", "arm", "disarm", "goto", "gimbal", "picture"]
+
+
+class Command(NamedTuple):
     """One actuation request from the script, for the host to check and execute.
 
     kind: "takeoff" (alt), "land", "rtl", "arm", "disarm", "goto" (north, east, alt: an
     absolute local target), "gimbal" (4 values), "picture".
     """
 
-    kind: str
+    kind: CommandKind
     args: tuple[float, ...] = ()
 
 
@@ -215,7 +231,7 @@ class ScriptAPI:
         if self.log_sink is not None:
             self.log_sink(self.vm.robot_id, text)
 
-    def _queue(self, kind: str, *args: float) -> None:
+    def _queue(self, kind: CommandKind, *args: float) -> None:
         self.commands.append(Command(kind, args))
 
     def _takeoff(self, alt: Any) -> None:

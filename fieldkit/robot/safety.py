@@ -22,19 +22,19 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Final, Literal, NamedTuple, get_args
 
 from fieldkit import geo, polygon
 from fieldkit.profiles import Profile
-from fieldkit.script_api import Command
+from fieldkit.robot.script_api import Command, Sensors
 
 #: How far ahead of the vehicle a setpoint may be, in seconds at the profile's top speed.
 CARROT_S = 1.0
 
 #: Actions a failsafe can take (the profile chooses): brake and keep position, land where
 #: it is, return to launch, or stop the script and brake (a UAV in the air hovers).
-SAFE_ACTIONS = ("hold", "land", "rtl", "stop")
+SafeAction = Literal["hold", "land", "rtl", "stop"]
+SAFE_ACTIONS: Final[tuple[SafeAction, ...]] = get_args(SafeAction)
 
 #: Healthy heartbeat needed, after a heartbeat loss that made the robot hold, before the
 #: script gets its robot back.
@@ -46,26 +46,19 @@ HEARTBEAT_LOST = "autopilot heartbeat lost"
 RESEND_S = 5.0
 
 
+#: What the vehicle can be told: go to (north, east, alt), take off (alt), land, return
+#: to launch, hold position, arm, disarm.
+OrderKind = Literal["goto", "takeoff", "land", "rtl", "hold", "arm", "disarm"]
+ORDER_KINDS: Final[tuple[OrderKind, ...]] = get_args(OrderKind)
+
+
 class Order(NamedTuple):
     """What the vehicle is told this tick: kind and, for "goto"/"takeoff", its numbers.
 
     A named tuple (immutable, hashable): one is made every tick a vehicle moves."""
 
-    kind: str  # "goto" (north, east, alt), "takeoff" (alt), "land", "rtl", "hold", "arm", "disarm"
+    kind: OrderKind
     args: tuple[float, ...] = ()
-
-
-@dataclass(slots=True)
-class VehicleState:
-    """What the supervisor needs to know of the vehicle this tick."""
-
-    north: float
-    east: float
-    alt: float
-    flying: bool
-    battery_percent: float
-    heartbeat_age_s: float = 0.0
-    rc_override: bool = False
 
 
 class Supervisor:
@@ -84,7 +77,7 @@ class Supervisor:
         self.queue: deque[Command] = deque()
         self.target: tuple[float, float, float] | None = None  # latched absolute goto
         self.failsafe: str | None = None  # the reason, once a failsafe fired
-        self.action: str | None = None
+        self.action: SafeAction | None = None
         self._action_sent = False
         self.events: list[str] = []  # what the supervisor did and why, for the node's log
         self._healthy = 0  # ticks of healthy heartbeat since a heartbeat-loss failsafe
@@ -93,6 +86,10 @@ class Supervisor:
         self._sent: dict[Order, int] = {}  # the last discrete order and when it went out
         self._now = 0  # ticks
         self.clamped = 0  # setpoints changed by the fence or the ceiling
+        # How close to a goto target counts as there (the profile's hover accuracy): the
+        # setpoint keeps streaming (PX4 needs it), but the arrival is known and reported.
+        self.accuracy = profile.kinematics.hover_accuracy_m
+        self.arrived = False  # within `accuracy` of the latched goto target
 
     # ------------------------------------------------------------ inputs
 
@@ -105,7 +102,7 @@ class Supervisor:
         """The script failed: its robot goes to the profile's safe state."""
         self._trip(f"script error: {message}", self.profile.failsafe.on_script_error)
 
-    def _trip(self, reason: str, action: str) -> None:
+    def _trip(self, reason: str, action: SafeAction) -> None:
         if self.failsafe is not None:
             return  # the first failsafe's action stands
         self.failsafe, self.action, self._action_sent = reason, action, False
@@ -115,7 +112,7 @@ class Supervisor:
 
     # ------------------------------------------------------------ one tick
 
-    def tick(self, v: VehicleState) -> Order | None:
+    def tick(self, v: Sensors) -> Order | None:
         """The one order for the vehicle this tick (None: send nothing)."""
         if v.rc_override:
             return None  # the pilot has the vehicle
@@ -130,7 +127,7 @@ class Supervisor:
         if self.failsafe is not None:
             if not self._action_sent:
                 self._action_sent = True
-                return Order("hold" if self.action == "stop" else self.action)  # type: ignore[arg-type]
+                return Order("hold" if self.action == "stop" else self.action)
             if self.failsafe == HEARTBEAT_LOST and self.action in ("hold", "stop"):
                 # Holding in the air and the link is back: give the script back its robot
                 # after a few healthy seconds (landing or returning is never undone).
@@ -144,13 +141,14 @@ class Supervisor:
             c = self.queue.popleft()
             if c.kind == "goto":
                 self.target = self._fenced(v, c.args)
+                self.arrived = False
                 continue  # the carrot below follows the newest target
             if c.kind == "takeoff":
                 if self.ground:
                     self.events.append("takeoff refused: ground robot")
                     continue
                 order = Order("takeoff", (min(c.args[0], self.ceiling),))
-            elif c.kind in ("land", "rtl", "arm", "disarm", "hold"):
+            elif c.kind == "land" or c.kind == "rtl" or c.kind == "arm" or c.kind == "disarm":
                 order = Order(c.kind)
             else:
                 continue  # camera and other auxiliary commands do not move the vehicle
@@ -164,10 +162,16 @@ class Supervisor:
             self.target = None
             return order
         if self.target is not None:
+            self._check_arrival(v, self.target)
             return Order("goto", self._carrot(v, self.target))
         return None
 
-    def _fenced(self, v: VehicleState, target: tuple[float, ...]) -> tuple[float, float, float]:
+    def _check_arrival(self, v: Sensors, target: tuple[float, float, float]) -> None:
+        self.arrived = math.hypot(target[0] - v.north, target[1] - v.east) <= self.accuracy and (
+            self.ground or abs(target[2] - v.alt) <= self.accuracy
+        )
+
+    def _fenced(self, v: Sensors, target: tuple[float, ...]) -> tuple[float, float, float]:
         north, east, alt = target
         if self.ground:
             alt = 0.0
@@ -183,7 +187,7 @@ class Supervisor:
             self.events.append("goto clamped to the geofence")
         return north, east, alt
 
-    def _carrot(self, v: VehicleState, target: tuple[float, float, float]) -> tuple[float, ...]:
+    def _carrot(self, v: Sensors, target: tuple[float, float, float]) -> tuple[float, ...]:
         dn, de = target[0] - v.north, target[1] - v.east
         dist = math.hypot(dn, de)
         reach = self.max_speed * CARROT_S

@@ -1,0 +1,146 @@
+"""The field node: one robot's runtime against its vehicle, its radio and a clock.
+
+The tick itself is the robot's (`fieldkit.robot.RobotRuntime`, the same in the simulator);
+the node feeds it, in this order:
+
+    radio in    bundles heard since the last tick -> the runtime
+    sensors     the vehicle's telemetry -> `Sensors`, plus any remote-control code now due
+    step, radio out, actuators: the runtime's tick -> one bundle to the radio, at most one
+                order to the vehicle
+
+The loop keeps the profile's rate against a monotonic clock. A late tick is logged and
+counted, never skipped: every tick runs all five phases. A script error puts the robot in
+its safe state (the supervisor's failsafe) and the node goes on: it keeps talking to the
+vehicle and the radio, so the robot stays visible and controllable.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+
+import bvm
+from fieldkit import geo
+from fieldkit.profiles import Profile
+from fieldkit.radio.base import RadioLink
+from fieldkit.robot.rc import RcCommand
+from fieldkit.robot.runtime import RobotRuntime
+from fieldkit.robot.vehicle import VehiclePort, sensors_from
+
+_log = logging.getLogger("fieldkit.node")
+
+
+class Node:
+    """One robot in the field: its runtime, vehicle and radio, driven by `tick`."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        program: bvm.Program,
+        robot_id: int,
+        vehicle: VehiclePort,
+        radio: RadioLink | None,
+        *,
+        home: tuple[float, float, float],
+        commands: Sequence[RcCommand] = (),
+        clock: Callable[[], float] = time.monotonic,
+        out: Callable[[str], None] = print,
+        seed: int = 0,
+        globals_: Mapping[str, object] | None = None,
+    ) -> None:
+        """`commands` are this robot's remote-control codes (times from start); `seed`
+        seeds the script's generators (with the robot id: each robot its own)."""
+        self.profile = profile
+        self.robot_id = robot_id
+        self.vehicle = vehicle
+        self.radio = radio
+        self.clock = clock
+        self.period = 1.0 / profile.node.loop_rate_hz
+        self.frame = geo.LocalFrame(*home)
+        self.commands = sorted(commands, key=lambda c: c.t)
+        self.late_ticks = 0
+        self.started = clock()
+        self.runtime = RobotRuntime(
+            robot_id,
+            profile,
+            self.frame,
+            seed=seed,
+            log_sink=out,
+            # A runaway step cannot stall the loop.
+            max_seconds=max(0.5, 5 * self.period),
+        )
+        self.runtime.start(program, sensors_from(vehicle.telemetry(), self.frame), globals_)
+
+    def _due_command(self, now: float) -> RcCommand | None:
+        if self.commands and self.commands[0].t <= now - self.started:
+            return self.commands.pop(0)
+        return None
+
+    # ------------------------------------------------------------ one tick
+
+    def tick(self) -> None:
+        """Run the five phases once."""
+        now = self.clock()
+        runtime = self.runtime
+        # 1. radio in
+        if self.radio is not None:
+            for _sender, data in self.radio.poll():
+                runtime.receive_bundle(data)
+        # 2. sensors
+        self.vehicle.poll()
+        sensors = sensors_from(self.vehicle.telemetry(), self.frame)
+        # 3.-5. step, radio out, actuators
+        out = runtime.tick(sensors, self._due_command(now), time_ns=time.time_ns())
+        if self.radio is not None:
+            self.radio.send(out.bundle)
+        if out.order is not None:
+            self.vehicle.execute(out.order, self.frame)
+
+    # ------------------------------------------------------------ the loop
+
+    def run(
+        self, seconds: float | None = None, sleep: Callable[[float], None] = time.sleep
+    ) -> None:
+        """Tick at the profile's rate until `seconds` have passed (forever if None)."""
+        start = self.clock()
+        next_tick = start
+        while seconds is None or self.clock() - start < seconds:
+            self.tick()
+            next_tick += self.period
+            now = self.clock()
+            if now > next_tick:
+                self.late_ticks += 1
+                late = now - next_tick
+                if self.late_ticks <= 10 or self.late_ticks % 100 == 0:
+                    _log.warning("tick %d late by %.0f ms", self.runtime.ticks, late * 1000)
+                # Keep the rate from here: no burst of catch-up ticks after a stall.
+                next_tick = now
+            else:
+                sleep(next_tick - now)
+
+    def summary(self) -> dict[str, object]:
+        """What `--out DIR` writes to summary.json."""
+        messages, bad = self.vehicle.counters()
+        radio = self.radio.stats if self.radio is not None else Counter()
+        runtime = self.runtime
+        return {
+            "robot_id": self.robot_id,
+            "ticks": runtime.ticks,
+            "late_ticks": self.late_ticks,
+            "mavlink_messages": messages,
+            "mavlink_bad_frames": bad,
+            # XBee radios count frames, the UDP radio datagrams.
+            "radio_frames_in": radio.get("frames_in", 0) + radio.get("datagrams_in", 0),
+            "radio_frames_out": radio.get("frames_out", 0) + radio.get("datagrams_out", 0),
+            "radio_bad_frames": radio.get("bad_frames", 0) + radio.get("bad_datagrams", 0),
+            "bundle_errors": runtime.counters["bundle_errors"],
+            "decode_errors": runtime.vm.net.stats["decode_errors"],
+            "errors": [runtime.error] if runtime.error is not None else [],
+            "final_state": runtime.state,
+            "failsafe": runtime.supervisor.failsafe,
+        }
+
+
+__all__ = ["Node"]
