@@ -108,8 +108,10 @@ class RobotRuntime:
         self.supervisor = Supervisor(profile, frame)
         self.heard: nb.HeardTable = {}
         self.timeout = nb.timeout_ticks(profile.node.loop_rate_hz)
-        # The Buzz bytes a bundle may carry: the profile's budget, never more than fits.
-        self.budget = min(profile.radio.per_step_budget_bytes, wirebundle.MAX_BUZZ_BYTES)
+        # The Buzz bytes a bundle may carry: the profile's budget (header included, as
+        # ROSBuzz counts its 190 bytes), never more than a bundle holds.
+        budget = min(profile.radio.per_step_budget_bytes, wirebundle.MAX_MSG_SIZE)
+        self.budget = budget - wirebundle.BUNDLE_HEADER
         self.ticks = 0
         self.status = ScriptStatus.IDLE
         self.error: str | None = None

@@ -25,16 +25,11 @@ from collections import deque
 from typing import Final, Literal, NamedTuple, get_args
 
 from fieldkit import geo, polygon
-from fieldkit.profiles import Profile
+from fieldkit.profiles import FailsafeAction, Profile
 from fieldkit.robot.script_api import Command, Sensors
 
 #: How far ahead of the vehicle a setpoint may be, in seconds at the profile's top speed.
 CARROT_S = 1.0
-
-#: Actions a failsafe can take (the profile chooses): brake and keep position, land where
-#: it is, return to launch, or stop the script and brake (a UAV in the air hovers).
-SafeAction = Literal["hold", "land", "rtl", "stop"]
-SAFE_ACTIONS: Final[tuple[SafeAction, ...]] = get_args(SafeAction)
 
 #: Healthy heartbeat needed, after a heartbeat loss that made the robot hold, before the
 #: script gets its robot back.
@@ -77,7 +72,7 @@ class Supervisor:
         self.queue: deque[Command] = deque()
         self.target: tuple[float, float, float] | None = None  # latched absolute goto
         self.failsafe: str | None = None  # the reason, once a failsafe fired
-        self.action: SafeAction | None = None
+        self.action: FailsafeAction | None = None
         self._action_sent = False
         self.events: list[str] = []  # what the supervisor did and why, for the node's log
         self._healthy = 0  # ticks of healthy heartbeat since a heartbeat-loss failsafe
@@ -102,7 +97,7 @@ class Supervisor:
         """The script failed: its robot goes to the profile's safe state."""
         self._trip(f"script error: {message}", self.profile.failsafe.on_script_error)
 
-    def _trip(self, reason: str, action: SafeAction) -> None:
+    def _trip(self, reason: str, action: FailsafeAction) -> None:
         if self.failsafe is not None:
             return  # the first failsafe's action stands
         self.failsafe, self.action, self._action_sent = reason, action, False

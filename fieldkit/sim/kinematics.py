@@ -46,6 +46,10 @@ _IDLE = 0  # stopped, holding position exactly
 _GOTO = 1  # steering toward the target
 _BRAKE = 2  # decelerating to a stop wherever that is
 
+# Phases of a return to launch: climbing where it is, then flying home (then it lands).
+_RTL_CLIMB = 0
+_RTL_RETURN = 1
+
 # Arrival: within this distance, and slow enough to stop in one step, snap onto the target.
 # Far below any hover accuracy, far above the rounding of coordinates of a few km.
 _SNAP_M = 1e-6
@@ -98,6 +102,7 @@ class Vehicle:
         "_climb",
         "_descent",
         "_drain",
+        "_rtl",
     )
 
     def __init__(
@@ -141,6 +146,8 @@ class Vehicle:
         self._descent = k.max_descent_mps
         # Percent per second while armed: linear from full to empty over the endurance.
         self._drain = 100.0 / battery.endurance_s if battery is not None else 0.0
+        # Return to launch under way: (phase, home x, home y, altitude), else None.
+        self._rtl: tuple[int, float, float, float] | None = None
 
     @classmethod
     def from_profile(
@@ -200,6 +207,7 @@ class Vehicle:
 
     def takeoff(self, alt: float) -> bool:
         """Climb straight up to `alt` metres (UAV, armed, on the ground); status 3, then 2."""
+        self._rtl = None
         if self.ground or not self.armed or self.status != ON_GROUND:
             return False
         if not (alt > 0.0 and math.isfinite(alt)):
@@ -212,6 +220,7 @@ class Vehicle:
 
     def land(self) -> bool:
         """Brake and descend to the ground; status 4, then 1 and disarmed on touchdown (UAV)."""
+        self._rtl = None
         if self.ground or self.status == ON_GROUND:
             return False
         if self.status != LANDING:
@@ -228,6 +237,7 @@ class Vehicle:
         what `land` is for), by a disarmed ground robot, and for non-finite coordinates.
         `yaw`, if given, is the new heading (ENU radians); otherwise the heading is kept.
         """
+        self._rtl = None
         if not (math.isfinite(x) and math.isfinite(y)):
             return False
         if self.ground:
@@ -247,12 +257,40 @@ class Vehicle:
 
     def hold(self) -> bool:
         """Brake to a stop at full deceleration and keep that position; aborts takeoff/landing."""
+        self._rtl = None
         self._brake_horizontal()
         if self._vmode != _IDLE:
             self._vmode = _BRAKE
         if self.status in (TAKING_OFF, LANDING):
             self.status = IN_AIR if self.z > 0.0 else ON_GROUND
         return True
+
+    def return_home(self, x: float, y: float, alt: float) -> bool:
+        """Return to launch as ArduPilot's RTL does: climb to at least `alt`, fly to (x, y),
+        land. A ground robot drives to (x, y) and stops. False if not under way."""
+        if self.ground:
+            if not self.armed or not self.goto(x, y):
+                return False
+            self._rtl = (_RTL_RETURN, x, y, 0.0)
+            return True
+        if self.status == ON_GROUND:
+            return False
+        self.hold()  # out of a takeoff or a landing: in the air, braking
+        climb = max(self.z, alt)
+        self.goto(self.x, self.y, climb)
+        self._rtl = (_RTL_CLIMB, x, y, climb)
+        return True
+
+    def _rtl_next(self) -> None:
+        """The RTL phase just finished (both axes stopped): start the next one."""
+        phase, x, y, alt = self._rtl  # type: ignore[misc]  # only called while one runs
+        if phase == _RTL_CLIMB:
+            self.goto(x, y, alt)
+            self._rtl = (_RTL_RETURN, x, y, alt)
+        elif self.ground:
+            self._rtl = None
+        else:
+            self.land()
 
     def _brake_horizontal(self) -> None:
         """Stop steering horizontally; decelerate if moving."""
@@ -360,6 +398,8 @@ class Vehicle:
 
         if hmode == _IDLE and vmode == _IDLE:
             self._arrived()
+            if self._rtl is not None:
+                self._rtl_next()
 
     def _arrived(self) -> None:
         """Both axes stopped: finish a takeoff or a landing."""

@@ -42,6 +42,9 @@ _log = logging.getLogger("fieldkit.sim")
 
 TICK_S = 0.1  # 10 Hz, ROSBuzz's BUZZRATE
 
+#: The altitude a return to launch climbs to first, as ArduPilot's RTL_ALT default.
+RTL_ALT_M = 15.0
+
 #: Where the simulated field is (any point works; scripts see GPS around it).
 DEFAULT_ORIGIN = (45.5017, -73.5673, 0.0)
 
@@ -289,7 +292,8 @@ class Simulation:
         elif kind == "disarm":
             v.disarm()
         elif kind == "rtl":
-            v.goto(robot.home[0], robot.home[1], v.z)
+            # As the autopilot's RTL mode does (the node sends a mode change).
+            v.return_home(robot.home[0], robot.home[1], RTL_ALT_M)
         else:  # hold
             v.hold()
 
