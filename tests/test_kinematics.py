@@ -11,14 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fieldkit.profiles import Battery, Kinematics, Profile, load_profile
-from fieldkit.sim.kinematics import (
-    DT,
-    IN_AIR,
-    LANDING,
-    ON_GROUND,
-    TAKING_OFF,
-    Vehicle,
-)
+from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
+from fieldkit.sim.kinematics import DT, Vehicle
 
 SOLO = load_profile("solo")
 HUSKY = load_profile("husky")

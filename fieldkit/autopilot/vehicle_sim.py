@@ -57,7 +57,8 @@ from pymavlink.dialects.v20 import all as mavlink2
 from fieldkit.autopilot.link import Autopilot, FrameReader, describe_error, use_mavlink2
 from fieldkit.geo import LocalFrame
 from fieldkit.profiles import Profile, load_profile
-from fieldkit.sim.kinematics import IN_AIR, LANDING, ON_GROUND, TAKING_OFF, Vehicle
+from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
+from fieldkit.sim.kinematics import Vehicle
 
 DEFAULT_HOME = (45.5049, -73.6133)
 """Where a simulated vehicle boots when no home is given (lat, lon): Polytechnique Montréal."""

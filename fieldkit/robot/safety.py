@@ -122,7 +122,8 @@ class Supervisor:
         if self.failsafe is not None:
             if not self._action_sent:
                 self._action_sent = True
-                return Order("hold" if self.action == "stop" else self.action)
+                action = self.action
+                return Order("hold" if action == "stop" or action is None else action)
             if self.failsafe == HEARTBEAT_LOST and self.action in ("hold", "stop"):
                 # Holding in the air and the link is back: give the script back its robot
                 # after a few healthy seconds (landing or returning is never undone).

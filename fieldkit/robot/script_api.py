@@ -320,7 +320,8 @@ class ScriptAPI:
             return None
         if not voronoi.inside_hull(region, (0.0, 0.0)):
             goal = voronoi.random_point_in(region, self.rng)
-            self._relative_goal(*goal)
+            if goal is not None:  # a region of three corners or more has points
+                self._relative_goal(*goal)
             return None
         cell = voronoi.hull_cell(0, sites, region)
         center = voronoi.centroid(cell) if len(cell) >= 3 else None

@@ -7,8 +7,8 @@
     v.goto(20.0, 10.0, 5.0)
 
 Position is in the local ENU frame (x east, y north, z up, metres); `status` uses the
-codes ROSBuzz pushes as `flight.status` (spec rosbuzz §2.2): 1 on ground, 2 in air,
-3 taking off, 4 landing.
+codes ROSBuzz pushes as `flight.status` (`fieldkit.robot.script_api`): 1 on ground, 2 in
+air, 3 taking off, 4 landing.
 
 Motion model. Horizontal and vertical motion are controlled separately, as autopilot
 position controllers do: each gets at most `max_accel_mps2` of acceleration; horizontal
@@ -28,18 +28,10 @@ from __future__ import annotations
 import math
 
 from fieldkit.profiles import Battery, Kinematics, Profile
+from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF, FlightStatus
 
 DT = 0.1
 """The simulator's step, seconds: the field node's 10 Hz loop."""
-
-ON_GROUND = 1
-"""flight.status: on the ground (armed or not)."""
-IN_AIR = 2
-"""flight.status: flying, holding or going to a target."""
-TAKING_OFF = 3
-"""flight.status: climbing to the takeoff altitude."""
-LANDING = 4
-"""flight.status: descending to land."""
 
 # Control state of one axis group (horizontal, vertical).
 _IDLE = 0  # stopped, holding position exactly
@@ -132,7 +124,7 @@ class Vehicle:
         self.vz = 0.0
         self.yaw = float(yaw)
         self.armed = False
-        self.status = ON_GROUND
+        self.status: FlightStatus = ON_GROUND
         self.battery_percent = 100.0
         self.voltage = battery.full_voltage if battery is not None else 0.0
         self._tx = self.x
@@ -307,7 +299,8 @@ class Vehicle:
                 p = 0.0
             self.battery_percent = p
             b = self.battery
-            self.voltage = b.empty_voltage + (b.full_voltage - b.empty_voltage) * p * 0.01
+            if b is not None:  # always, when it drains
+                self.voltage = b.empty_voltage + (b.full_voltage - b.empty_voltage) * p * 0.01
         hmode = self._hmode
         vmode = self._vmode
         if hmode == _IDLE and vmode == _IDLE:

@@ -24,6 +24,7 @@ import random
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import bvm
 from fieldkit import bundle as wirebundle
@@ -228,7 +229,7 @@ class Simulation:
                     if robot is not None:
                         robot.runtime.receive_bundle(data, (pos[0], pos[1]))
                 continue
-            src, messages = sent
+            src, messages = cast(tuple[int, tuple[bytes, ...]], sent)  # what _send noted
             # Where the sender was when it sent (its position in the shared local frame,
             # which is its bundle's GPS); one entry shared by every receiver: never modified.
             entry = (pos[0], pos[1], t)
