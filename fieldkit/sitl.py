@@ -28,6 +28,7 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO, Any
 
 from fieldkit import geo
 from fieldkit.autopilot.vehicle_sim import DEFAULT_HOME, PtyPair, SimVehicle, open_pty
@@ -54,7 +55,7 @@ class SitlRobot:
     out: Path
     process: subprocess.Popen[bytes] | None = None
     bytes_sent: int = 0
-    log: object = None
+    log: IO[bytes] | None = None
 
 
 class RadioRelay:
@@ -187,15 +188,16 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
                     argv += ["--command", c.text(with_robot=False)]
             r.log = (r.out / "log.txt").open("wb")
             r.process = subprocess.Popen(argv, stdout=r.log, stderr=subprocess.STDOUT)
+        processes = [r.process for r in robots if r.process is not None]
         start = time.monotonic()
         last = start
         deadline = start + cfg.seconds + 60.0  # start-up (GPS fix, imports) and wind-down
-        while any(r.process.poll() is None for r in robots):  # type: ignore[union-attr]
+        while any(p.poll() is None for p in processes):
             now = time.monotonic()
             if now > deadline:
-                for r in robots:
-                    if r.process.poll() is None:  # type: ignore[union-attr]
-                        r.process.kill()  # type: ignore[union-attr]
+                for p in processes:
+                    if p.poll() is None:
+                        p.kill()
                 break
             for r in robots:
                 r.vehicle.step(now - last)
@@ -210,7 +212,7 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
                 r.process.kill()
                 r.process.wait()
             if r.log is not None:
-                r.log.close()  # type: ignore[attr-defined]
+                r.log.close()
             r.vehicle.close()
             r.autopilot_pty.close()
             r.radio_pty.close()
@@ -223,14 +225,14 @@ def _summary(cfg: SitlConfig, robots: list[SitlRobot], relay: RadioRelay) -> dic
     nodes: dict[str, object] = {}
     for r in robots:
         path = r.out / "summary.json"
-        node: dict[str, object] = {}
+        node: dict[str, Any] = {}
         if path.exists():
             node = json.loads(path.read_text(encoding="utf-8"))
         else:
             tail = (r.out / "log.txt").read_text(encoding="utf-8", errors="replace")[-2000:]
             errors.append({"robot": r.id, "error": f"node did not finish: {tail.strip()}"})
         states[str(r.id)] = node.get("final_state")
-        for e in node.get("errors", []):  # type: ignore[union-attr]
+        for e in node.get("errors", []):
             errors.append({"robot": r.id, "error": e})
         nodes[str(r.id)] = node
     summary = {
