@@ -1,4 +1,4 @@
-"""The autopilot link (fieldkit.autopilot.link) against a simulated ArduPilot on a real pty.
+"""The autopilot link (fieldkit.vehicle.link) against a simulated ArduPilot on a real pty.
 
 Both ends speak pymavlink: `SimRig` puts a `SimVehicle` on the pty master and an `Autopilot`
 on the slave path, steps them in lockstep on a simulated clock and waits for the bytes (with
@@ -22,19 +22,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
+from rigs import SimRig
 
 from fieldkit import geo
-from fieldkit.autopilot import (
+from fieldkit.profiles import load_profile
+from fieldkit.vehicle import (
     Autopilot,
     AutopilotError,
     Command,
     CommandStatus,
     FrameReader,
-    SimRig,
     SimVehicle,
     open_pty,
 )
-from fieldkit.profiles import load_profile
 
 TLOGS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tlogs"
 HOME = (45.5049, -73.6133)
