@@ -131,7 +131,7 @@ def test_two_cores_exchange_bundles(api_mode: int) -> None:
 
 
 def test_core_writes_the_spec_frame() -> None:
-    """Robot 7 sending the §11 bundle writes the §11 API frame byte for byte."""
+    """Robot 7 sending the example bundle writes XbeeMav's API frame byte for byte."""
     core = XBeeCore(7, now=0.0)
     core.submit(B.encode(EXAMPLE))
     raw = b"".join(core.frames_to_send(0.0))

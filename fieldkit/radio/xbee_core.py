@@ -69,7 +69,7 @@ class ModemEvent:
     status: int
 
 
-Event = PacketReceived | TransmitReport | ModemEvent
+RadioEvent = PacketReceived | TransmitReport | ModemEvent
 """What `XBeeCore.receive_data` reports."""
 
 
@@ -121,7 +121,7 @@ class XBeeCore:
         """Queue one bundle's air bytes (whole 8-byte words) for broadcast; ValueError if not.
 
         The msgid is a BUZZ_MESSAGE's message number as ROSBuzz derives it (so a bundle leaves
-        as the spec frame), otherwise a counter of our own.
+        in the very frame ROSBuzz's XbeeMav would write), otherwise a counter of our own.
         """
         msgid = msgid_of(data)
         if msgid is None:
@@ -129,7 +129,7 @@ class XBeeCore:
             msgid = self._msgid
         self.engine.submit(data, msgid)
 
-    def receive_data(self, data: bytes, now: float) -> list[Event]:
+    def receive_data(self, data: bytes, now: float) -> list[RadioEvent]:
         """What the line delivered by `now` (b"" if nothing): the events it completes.
 
         An empty `data` still matters: once the line has been quiet for `idle_flush_s`, a
@@ -144,7 +144,7 @@ class XBeeCore:
             frames = self.reader.flush()
         else:
             return []
-        events: list[Event] = []
+        events: list[RadioEvent] = []
         for frame in frames:
             if isinstance(frame, ReceivePacket):
                 got = self._received(frame)

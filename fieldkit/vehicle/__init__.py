@@ -8,8 +8,8 @@
 - `sim.ardupilot.SimArduPilot` / `sim.vehicle.SimVehicle`: a vehicle that answers like
   ArduCopter or ArduPilot Rover, without I/O / on a port (real time for `fieldkit vehicle-sim`).
 
-The names below are loaded on first use: pymavlink takes half a second to import, and every
-`fieldkit` command imports the vehicle simulator's command line.
+The names below are loaded on first use: pymavlink takes half a second to import, and a caller
+that wants only a pty should not pay for it.
 """
 
 from __future__ import annotations

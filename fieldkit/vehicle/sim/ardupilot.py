@@ -57,12 +57,17 @@ from fieldkit.vehicle.mavlink import FrameReader, new_codec
 DEFAULT_HOME = (45.5049, -73.6133)
 """Where a simulated vehicle boots when no home is given (lat, lon): Polytechnique Montréal."""
 
-log = logging.getLogger("fieldkit.vehicle_sim")
+# The logger keeps its old name: `fieldkit vehicle-sim` shows this logger's lines.
+_log = logging.getLogger("fieldkit.vehicle_sim")
 
 ACCEPTED = mavlink2.MAV_RESULT_ACCEPTED
+"""COMMAND_ACK result: done."""
 FAILED = mavlink2.MAV_RESULT_FAILED
+"""COMMAND_ACK result: refused by a check (ArduPilot's usual refusal)."""
 DENIED = mavlink2.MAV_RESULT_DENIED
+"""COMMAND_ACK result: parameters not acceptable."""
 UNSUPPORTED = mavlink2.MAV_RESULT_UNSUPPORTED
+"""COMMAND_ACK result: a command this vehicle does not know."""
 
 # Modes that need a position estimate (ArduPilot refuses them without a GPS fix).
 _COPTER_GPS_MODES = frozenset(
@@ -332,7 +337,7 @@ class SimArduPilot:
         self._mav.statustext_send(severity, text.encode("ascii", "replace")[:50])
 
     def _note(self, text: str) -> None:
-        log.info("t=%.1f %s: %s", self.time, self.profile.name, text)
+        _log.info("t=%.1f %s: %s", self.time, self.profile.name, text)
 
     def _ack(self, msg: Any, command: int, result: int) -> None:
         if self.faults.drop_acks > 0:
