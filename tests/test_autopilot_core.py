@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import pytest
 from pymavlink.dialects.v20 import all as mavlink2
@@ -26,7 +27,7 @@ HOME = (45.5049, -73.6133)
 def make_rig() -> Iterator[Callable[..., MemoryRig]]:
     """MemoryRigs at HOME."""
 
-    def make(profile: str = "solo", **options: object) -> MemoryRig:
+    def make(profile: str = "solo", **options: Any) -> MemoryRig:
         return MemoryRig(profile, home=HOME, **options)
 
     yield make

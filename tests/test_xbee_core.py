@@ -149,7 +149,8 @@ def test_status_frames_become_events() -> None:
         + X.AtResponse(1, b"SH", 0, b"\x00\x13\xa2\x00").encode(1)
     )
     events = core.receive_data(line, 1.0)
-    assert events == [TransmitReport(1, 0x21), ModemEvent(0)] and events[0].failed
+    assert events == [TransmitReport(1, 0x21), ModemEvent(0)]
+    assert isinstance(events[0], TransmitReport) and events[0].failed
     assert (core.stats["tx_failed"], core.stats["modem_status"]) == (1, 1)
     assert core.stats["ignored_frames"] == 1 and core.stats["bytes_in"] == len(line)
 
