@@ -31,10 +31,12 @@ from pathlib import Path
 from typing import IO, Any
 
 from fieldkit import geo
-from fieldkit.autopilot.vehicle_sim import DEFAULT_HOME, PtyPair, SimVehicle, open_pty
 from fieldkit.profiles import Profile
 from fieldkit.radio.xbee import FrameReader, TransmitRequest, receive_packet
 from fieldkit.robot.rc import RcCommand
+from fieldkit.vehicle.pty import PtyPair, open_pty
+from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME
+from fieldkit.vehicle.sim.vehicle import SimVehicle
 
 #: Where robot i's XBee serial numbers start (Digi's OUI prefix, as real modules have).
 SERIAL_BASE = 0x0013A20000000000

@@ -1,4 +1,4 @@
-"""fieldkit.sim.kinematics: limits checked on every step, arrival without overshoot, status."""
+"""fieldkit.vehicle.kinematics: limits checked on every step, arrival without overshoot, status."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from fieldkit.profiles import Battery, Kinematics, Profile, load_profile
 from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
-from fieldkit.sim.kinematics import DT, Vehicle
+from fieldkit.vehicle.kinematics import DT, Vehicle
 
 SOLO = load_profile("solo")
 HUSKY = load_profile("husky")

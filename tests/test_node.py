@@ -11,9 +11,9 @@ import os
 from collections.abc import Iterator
 
 import pytest
+from rigs import SimRig
 
 import bvm
-from fieldkit.autopilot.vehicle_sim import SimRig
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.node import Node
 from fieldkit.robot.rc import RcCommand

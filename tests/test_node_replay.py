@@ -14,11 +14,11 @@ from pymavlink.dialects.v20 import all as mavlink2
 
 import bvm
 from bvm.values import f32
-from fieldkit.autopilot.link import Autopilot
-from fieldkit.autopilot.vehicle_sim import open_pty
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.node import Node
 from fieldkit.profiles import load_profile
+from fieldkit.vehicle.link import Autopilot
+from fieldkit.vehicle.pty import open_pty
 
 TLOGS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tlogs"
 FLIGHT = TLOGS / "quad-flight-arducopter.tlog"

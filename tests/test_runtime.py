@@ -14,11 +14,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from rigs import SimRig
 
 import bvm
 from fieldkit import bundle as wirebundle
 from fieldkit import geo
-from fieldkit.autopilot.vehicle_sim import SimRig
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.node import Node
 from fieldkit.profiles import load_profile

@@ -179,3 +179,14 @@ def test_from_profile_udp() -> None:
     assert isinstance(r, UdpRadio) and r.port == port
     assert r.destinations == [("255.255.255.255", port)]
     r.close()
+
+
+def test_datagram_format_without_a_socket() -> None:
+    """The 10-byte header: magic, version, flags, robot id, tag; anything else is not ours."""
+    datagram = U.pack_datagram(0x0102, 0xDEADBEEF, b"air")
+    assert datagram == b"FK\x01\x00\x01\x02\xde\xad\xbe\xef" + b"air"
+    assert U.unpack_datagram(datagram) == (0x0102, 0xDEADBEEF, b"air")
+    assert U.unpack_datagram(datagram[:10]) is None  # a header and no air bytes
+    assert U.unpack_datagram(b"FX" + datagram[2:]) is None
+    assert U.unpack_datagram(datagram[:2] + b"\x02" + datagram[3:]) is None
+    assert U.unpack_datagram(datagram[:3] + b"\x07" + datagram[4:]) == (0x0102, 0xDEADBEEF, b"air")

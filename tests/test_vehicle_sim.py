@@ -1,4 +1,4 @@
-"""The simulated ArduPilot vehicle (fieldkit.autopilot.vehicle_sim) and `fieldkit vehicle-sim`.
+"""The simulated ArduPilot vehicle (fieldkit.vehicle.sim) and `fieldkit vehicle-sim`.
 
 The ground station here is pymavlink's codec alone on the slave end of a real pty, so these
 tests check the vehicle's MAVLink behaviour independently of fieldkit's own link. Waits are on
@@ -26,10 +26,10 @@ from pymavlink.dialects.v20 import all as mavlink2
 from typer.testing import CliRunner
 
 from fieldkit import geo
-from fieldkit.autopilot import Autopilot, PtyPair, SimVehicle, VehicleSimError, open_pty
 from fieldkit.autopilot.cli import parse_home
 from fieldkit.cli import app
 from fieldkit.profiles import load_profile
+from fieldkit.vehicle import Autopilot, PtyPair, SimVehicle, VehicleSimError, open_pty
 
 HOME = (45.5049, -73.6133)
 ROOT = Path(__file__).resolve().parents[1]
@@ -578,7 +578,7 @@ def test_cli_does_not_overwrite_a_file_with_the_pty_link(tmp_path: Path) -> None
 
 
 def test_cli_help_names_the_default_home() -> None:
-    from fieldkit.autopilot.vehicle_sim import DEFAULT_HOME
+    from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME
 
     result = runner.invoke(app, ["vehicle-sim", "--help"], env={"COLUMNS": "200"})
     assert result.exit_code == 0

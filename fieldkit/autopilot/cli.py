@@ -27,7 +27,8 @@ import typer
 from fieldkit.profiles import ProfileError, load_profile
 
 if TYPE_CHECKING:
-    from fieldkit.autopilot.vehicle_sim import PtyPair, SimVehicle
+    from fieldkit.vehicle.pty import PtyPair
+    from fieldkit.vehicle.sim.vehicle import SimVehicle
 
 
 def _fail(message: str) -> typer.Exit:
@@ -95,7 +96,9 @@ def vehicle_sim_cmd(
 ) -> None:
     """Run a simulated ArduPilot vehicle (Copter, or Rover for a ground profile)."""
     # Imported here: pymavlink is slow to import, and every fieldkit command loads this file.
-    from fieldkit.autopilot.vehicle_sim import DEFAULT_HOME, SimVehicle, VehicleSimError, open_pty
+    from fieldkit.vehicle.pty import open_pty
+    from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME, VehicleSimError
+    from fieldkit.vehicle.sim.vehicle import SimVehicle
 
     try:
         prof = load_profile(profile)

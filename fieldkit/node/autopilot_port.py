@@ -1,4 +1,4 @@
-"""The field node's view of its autopilot: `fieldkit.autopilot.link.Autopilot` as telemetry
+"""The field node's view of its autopilot: `fieldkit.vehicle.link.Autopilot` as telemetry
 snapshots in, supervisor orders out."""
 
 from __future__ import annotations
@@ -6,10 +6,10 @@ from __future__ import annotations
 import logging
 
 from fieldkit import geo
-from fieldkit.autopilot.link import Autopilot
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
 from fieldkit.robot.vehicle import Telemetry
+from fieldkit.vehicle.link import Autopilot
 
 _log = logging.getLogger("fieldkit.node")
 

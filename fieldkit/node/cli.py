@@ -67,10 +67,11 @@ def node_cmd(
     ] = 30.0,
 ) -> None:
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
-    from fieldkit.autopilot.link import Autopilot, AutopilotError
     from fieldkit.node.autopilot_port import MavlinkAutopilot
     from fieldkit.node.node import Node
     from fieldkit.profiles import ProfileError, load_profile
+    from fieldkit.vehicle.autopilot import AutopilotError
+    from fieldkit.vehicle.link import Autopilot
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:

@@ -2,7 +2,9 @@
 
 * `base`    -- the `RadioLink` interface (send / poll / stats / close) and the `IdTable`;
 * `xbee`    -- XBee API frames (modes 1 and 2) and the streaming `FrameReader`;
-* `xbeemav` -- XbeeMav packets and fragmentation (`XbeeMav`) and `XBeeRadio`;
+* `xbeemav` -- XbeeMav packets and fragmentation (`XbeeMav`, the packet engine);
+* `xbee_core` -- `XBeeCore`, the sans-I/O radio: serial bytes and time in, frames and events out;
+* `xbee_serial` -- `XBeeRadio`, that core on a pyserial port;
 * `udp`     -- `UdpRadio`, our own datagram format for WiFi meshes and local runs.
 
 `open_radio(url, robot_id)` takes ``serial:///dev/ttyUSB0?baud=230400&api=1``, a device
@@ -17,7 +19,9 @@ from typing import TYPE_CHECKING, Any
 
 from .base import IdTable, RadioLink, UnknownSenders, parse_serial
 from .udp import UdpRadio
-from .xbeemav import XbeeMav, XBeeRadio
+from .xbee_core import XBeeCore
+from .xbee_serial import XBeeRadio
+from .xbeemav import XbeeMav
 
 if TYPE_CHECKING:
     from fieldkit.profiles import Radio
@@ -27,6 +31,7 @@ __all__ = [
     "RadioLink",
     "UdpRadio",
     "UnknownSenders",
+    "XBeeCore",
     "XBeeRadio",
     "XbeeMav",
     "from_profile",

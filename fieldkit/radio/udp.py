@@ -58,6 +58,21 @@ MAX_DATA = 65507 - HEADER.size
 _QUERY_KEYS = ("peers", "bind", "iface", "ttl")
 
 
+def pack_datagram(robot_id: int, tag: int, data: bytes) -> bytes:
+    """The datagram carrying `data` from `robot_id`'s radio with instance tag `tag`."""
+    return HEADER.pack(MAGIC, VERSION, 0, robot_id, tag) + bytes(data)
+
+
+def unpack_datagram(datagram: bytes) -> tuple[int, int, bytes] | None:
+    """(robot id, instance tag, air bytes) of one of our datagrams; None if it is not one."""
+    if len(datagram) <= HEADER.size:
+        return None
+    magic, version, _flags, robot, tag = HEADER.unpack_from(datagram)
+    if magic != MAGIC or version != VERSION:
+        return None
+    return robot, tag, datagram[HEADER.size :]
+
+
 class UdpRadio:
     """A `RadioLink` over a non-blocking UDP socket: broadcast, multicast or a peer list."""
 
@@ -84,7 +99,6 @@ class UdpRadio:
         self.max_per_poll = max_per_poll
         # Random so that two radios given the same id (a misconfiguration) are told apart.
         self.tag = random.SystemRandom().getrandbits(32)
-        self._header = HEADER.pack(MAGIC, VERSION, 0, robot_id, self.tag)
         if group == "localhost":
             group = LOOPBACK_BROADCAST
         address = ipaddress.IPv4Address(group)
@@ -175,7 +189,7 @@ class UdpRadio:
             raise ValueError("radio is closed")
         if not 0 < len(data) <= MAX_DATA:
             raise ValueError(f"{len(data)} bytes: a datagram carries 1..{MAX_DATA}")
-        datagram = self._header + bytes(data)
+        datagram = pack_datagram(self.robot_id, self.tag, data)
         for dest in self.destinations:
             try:
                 self._sock.sendto(datagram, dest)
@@ -210,18 +224,16 @@ class UdpRadio:
     def _parse(self, datagram: bytes) -> tuple[int, bytes] | None:
         self.stats["datagrams_in"] += 1
         self.stats["bytes_in"] += len(datagram)
-        if len(datagram) <= HEADER.size:
+        got = unpack_datagram(datagram)
+        if got is None:
             self.stats["bad_datagrams"] += 1
             return None
-        magic, version, _flags, robot, tag = HEADER.unpack_from(datagram)
-        if magic != MAGIC or version != VERSION:
-            self.stats["bad_datagrams"] += 1
-            return None
+        robot, tag, data = got
         if robot == self.robot_id:
             self.stats["echoes" if tag == self.tag else "id_conflicts"] += 1
             return None
         self.stats["delivered"] += 1
-        return robot, datagram[HEADER.size :]
+        return robot, data
 
     def close(self) -> None:
         """Close the socket."""

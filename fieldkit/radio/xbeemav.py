@@ -11,8 +11,10 @@ Packets (RF data of one XBee frame), byte-compatible with XbeeMav:
 * ``'A' | packet_id | acker address | missing indices...``: the answer to a ping; an empty
   list means complete.
 
-Addresses are 8-bit robot ids. `XbeeMav` is the protocol engine, with no I/O and an injected
-clock; `XBeeRadio` puts it on a serial port with `fieldkit.radio.xbee` frames.
+Addresses are 8-bit robot ids. `XbeeMav` is the packet engine, with no I/O and an injected
+clock. `fieldkit.radio.xbee_core.XBeeCore` wraps it in `fieldkit.radio.xbee` API frames (serial
+bytes and time in, bytes and events out, still no I/O), and `fieldkit.radio.xbee_serial.XBeeRadio`
+puts that core on a serial port.
 
 Where we differ from XbeeMav, and why (none of it changes a byte on the air):
 
@@ -60,28 +62,14 @@ dropped_standard, dropped_large, dropped_acks.
 
 from __future__ import annotations
 
-import select
 import time
 import zlib
 from collections import Counter, OrderedDict, deque
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from itertools import islice
-from typing import Any
-from urllib.parse import parse_qsl, urlencode, urlsplit
 
-import serial
-
-from .base import IdTable, check_policy, check_robot_id
-from .xbee import (
-    API_MODES,
-    XBEEMAV_DEST16,
-    FrameReader,
-    ModemStatus,
-    ReceivePacket,
-    TransmitStatus,
-    transmit_request,
-)
+from .base import check_robot_id
 
 FRAGMENT_DATA = 250
 """Packet bytes per fragment."""
@@ -102,7 +90,14 @@ MAX_ACK_MISSING = MAX_RF_DATA - 3
 DEFAULT_BAUD = 230400
 """XbeeMav's and the profiles' baud rate (spec wire §9.1)."""
 
-STANDARD, FRAGMENT, PING, ACK = b"S"[0], b"F"[0], b"P"[0], b"A"[0]
+STANDARD = b"S"[0]
+"""First byte of a standard packet."""
+FRAGMENT = b"F"[0]
+"""First byte of a fragment."""
+PING = b"P"[0]
+"""First byte of an end-of-packet ping."""
+ACK = b"A"[0]
+"""First byte of an ack."""
 
 
 def sender_byte(rf: bytes) -> int | None:
@@ -545,268 +540,3 @@ class XbeeMav:
             if d.at >= limit:
                 break
             del self._delivered[k]
-
-
-# ---------------------------------------------------------------------- the radio
-
-_OUR_PARAMS = ("baud", "api", "unknown")
-
-
-class XBeeRadio:
-    """A `RadioLink` over an XBee in API mode on a serial port, speaking XbeeMav's packets.
-
-    `port` is a device path (opened at `baud`, non-blocking) or an open pyserial port (e.g.
-    `serial.serial_for_url("loop://")`). `robot_id` (0..255) is this node's sysid and
-    address; `id_map` maps XBee serials (16 hex digits) to robot ids; `unknown` says what to
-    do with frames from other serials (see `fieldkit.radio.base`). `send` derives msgid from
-    a BUZZ_MESSAGE's message number as ROSBuzz does (so `send(encode(bundle))` writes the
-    spec §11 frame), otherwise from a counter of its own. Engine options (`interframe_s`,
-    `round_wait_s`, ...) go to `XbeeMav`.
-
-    `stats` counts, besides the `FrameReader` and `XbeeMav` counters: bytes_in, bytes_out,
-    frames_out, tx_status, tx_failed (status frames reporting a delivery failure),
-    modem_status, ignored_frames (other frame types), unknown_senders, dropped_unknown,
-    io_errors, reopens, tx_overflow (frames dropped because the port would not drain).
-    """
-
-    def __init__(
-        self,
-        port: serial.SerialBase | str,
-        robot_id: int,
-        *,
-        baud: int = DEFAULT_BAUD,
-        api_mode: int = 1,
-        id_map: IdTable | Mapping[str, int] | Mapping[int, int] | None = None,
-        unknown: str = "drop",
-        clock: Callable[[], float] = time.monotonic,
-        frame_id: int = 1,
-        dest16: int = XBEEMAV_DEST16,
-        idle_flush_s: float = 0.1,
-        max_tx_buffer: int = 1 << 16,
-        **engine_options: Any,
-    ) -> None:
-        if api_mode not in API_MODES:
-            raise ValueError(f"API mode must be 1 or 2, got {api_mode!r}")
-        self.robot_id = check_robot_id(robot_id)
-        self.api_mode = api_mode
-        self.ids = id_map if isinstance(id_map, IdTable) else IdTable(id_map)
-        self.unknown = check_policy(unknown)
-        self.clock = clock
-        self.frame_id = frame_id
-        self.dest16 = dest16
-        self.idle_flush_s = idle_flush_s
-        self.max_tx_buffer = max_tx_buffer
-        self.stats: Counter[str] = Counter()
-        self.reader = FrameReader(api_mode, stats=self.stats)
-        self.engine = XbeeMav(robot_id, clock=clock, stats=self.stats, **engine_options)
-        self._path = port if isinstance(port, str) else None
-        self._baud = baud
-        self._port: serial.SerialBase | None = None
-        self._reopen_at = 0.0
-        self._tx = bytearray()
-        self._last_rx = clock()
-        self._msgid = 0
-        self._closed = False
-        if isinstance(port, str):
-            self._port = self._open(port, baud)
-        else:
-            self._port = port
-
-    @staticmethod
-    def _open(path: str, baud: int) -> serial.SerialBase:
-        return serial.Serial(path, baud, timeout=0, write_timeout=0)
-
-    @classmethod
-    def from_url(cls, url: str, robot_id: int, **kwargs: Any) -> XBeeRadio:
-        """An XBeeRadio from `serial:///dev/ttyUSB0?baud=230400&api=1`, a device path, or a
-        pyserial URL (`loop://`, `socket://host:port`, `spy://...`, with the same query keys;
-        opened with blocking writes, for tests and bridges).
-
-        Query keys: baud, api (1 or 2), unknown (drop or sysid); they override `kwargs`.
-        """
-        parts = urlsplit(url)
-        if not parts.scheme or len(parts.scheme) == 1:  # "/dev/ttyUSB0", "COM3", "C:\\..."
-            return cls(url, robot_id, **kwargs)
-        query = parse_qsl(parts.query, keep_blank_values=True)
-        ours = {k: v for k, v in query if k in _OUR_PARAMS}
-        theirs = [(k, v) for k, v in query if k not in _OUR_PARAMS]
-        try:
-            if "baud" in ours:
-                kwargs["baud"] = int(ours["baud"])
-            if "api" in ours:
-                kwargs["api_mode"] = int(ours["api"])
-        except ValueError:
-            raise ValueError(f"bad baud or api in {url!r}") from None
-        if "unknown" in ours:
-            kwargs["unknown"] = ours["unknown"]
-        if parts.scheme == "serial":
-            if theirs:
-                raise ValueError(f"unknown query keys {[k for k, _ in theirs]} in {url!r}")
-            path = parts.netloc + parts.path
-            if not path:
-                raise ValueError(f"no device in {url!r}")
-            return cls(path, robot_id, **kwargs)
-        # Any other scheme is one of pyserial's URL handlers, given its own query keys. Their
-        # writes block (loop:// refuses every write with write_timeout=0): tests and bridges.
-        inner = f"{parts.scheme}://{parts.netloc}{parts.path}"
-        if theirs:
-            inner += "?" + urlencode(theirs)
-        port = serial.serial_for_url(inner, kwargs.get("baud", DEFAULT_BAUD), timeout=0)
-        return cls(port, robot_id, **kwargs)
-
-    # ------------------------------------------------------------------ RadioLink
-
-    def send(self, data: bytes) -> None:
-        """Queue one bundle's air bytes (whole 8-byte words) for broadcast; writes if due."""
-        if self._closed:
-            raise ValueError("radio is closed")
-        msgid = msgid_of(data)
-        if msgid is None:
-            self._msgid = (self._msgid + 1) & 0xFF
-            msgid = self._msgid
-        self.engine.submit(data, msgid)
-        self._pump()
-
-    def poll(self) -> list[tuple[int, bytes]]:
-        """(sender id, payload) received since the last poll; also writes the frames now due."""
-        if self._closed:
-            return []
-        now = self.clock()
-        frames = []
-        data = self._read(now)
-        if data:
-            self.stats["bytes_in"] += len(data)
-            self._last_rx = now
-            frames = self.reader.feed(data)
-        elif self.reader.pending and now - self._last_rx >= self.idle_flush_s:
-            frames = self.reader.flush()
-        out = []
-        for frame in frames:
-            if isinstance(frame, ReceivePacket):
-                got = self._received(frame)
-                if got is not None:
-                    out.append(got)
-            elif isinstance(frame, TransmitStatus):
-                self.stats["tx_status"] += 1
-                if frame.delivery_status:
-                    self.stats["tx_failed"] += 1
-            elif isinstance(frame, ModemStatus):
-                self.stats["modem_status"] += 1
-            else:
-                self.stats["ignored_frames"] += 1
-        self._pump()
-        return out
-
-    def fileno(self) -> int | None:
-        """The port's file descriptor, for a select() loop (None for ports without one)."""
-        try:
-            return None if self._port is None else self._port.fileno()
-        except (AttributeError, NotImplementedError, OSError, serial.SerialException):
-            return None
-
-    def close(self) -> None:
-        """Close the port (if this radio opened it or was given it)."""
-        self._closed = True
-        if self._port is not None:
-            try:
-                self._port.close()
-            except (OSError, serial.SerialException):
-                pass
-            self._port = None
-
-    def __enter__(self) -> XBeeRadio:
-        """The radio itself."""
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        """Close the radio."""
-        self.close()
-
-    # ------------------------------------------------------------------ internals
-
-    def _received(self, frame: ReceivePacket) -> tuple[int, bytes] | None:
-        sender = self.ids.lookup(frame.source64)
-        if sender is None:
-            self.stats["unknown_senders"] += 1
-            if self.unknown == "drop":
-                self.stats["dropped_unknown"] += 1
-                return None
-            sender = sender_byte(frame.rf_data)
-            if sender is None:
-                self.stats["dropped_unknown"] += 1  # not an XbeeMav packet: no id to take
-                return None
-        data = self.engine.receive(sender, frame.rf_data)
-        return None if data is None else (sender, data)
-
-    def _pump(self) -> None:
-        for rf in self.engine.pump():
-            frame = transmit_request(
-                rf, frame_id=self.frame_id, dest16=self.dest16, api_mode=self.api_mode
-            )
-            if len(self._tx) + len(frame) > self.max_tx_buffer:
-                self.stats["tx_overflow"] += 1
-                continue
-            self._tx += frame
-            self.stats["frames_out"] += 1
-        self._write()
-
-    def _port_ready(self, now: float) -> serial.SerialBase | None:
-        if self._port is None and self._path is not None and now >= self._reopen_at:
-            self._reopen_at = now + 1.0
-            try:
-                self._port = self._open(self._path, self._baud)
-                self.reader.reset()
-                self.stats["reopens"] += 1
-            except (OSError, serial.SerialException):
-                self.stats["io_errors"] += 1
-        return self._port
-
-    def _io_failed(self, now: float) -> None:
-        self.stats["io_errors"] += 1
-        if self._path is None:
-            return  # not ours to reopen: keep counting
-        try:
-            if self._port is not None:
-                self._port.close()
-        except (OSError, serial.SerialException):
-            pass
-        self._port = None
-        self._reopen_at = now + 1.0
-
-    def _read(self, now: float) -> bytes:
-        port = self._port_ready(now)
-        if port is None:
-            return b""
-        chunks = []
-        try:
-            for _ in range(16):  # at most 64 KiB per poll: stay non-blocking under a flood
-                chunk = port.read(4096)
-                if not chunk:
-                    break
-                chunks.append(chunk)
-                if len(chunk) < 4096:
-                    break
-        except (OSError, serial.SerialException):
-            self._io_failed(now)
-        return b"".join(chunks)
-
-    def _write(self) -> None:
-        port = self._port
-        if port is None or not self._tx:
-            return
-        try:
-            fd = port.fileno() if hasattr(port, "fileno") else None
-        except (OSError, serial.SerialException, AttributeError, NotImplementedError):
-            fd = None
-        try:
-            while self._tx:
-                # pyserial's non-blocking write spins on EAGAIN: write only when there is room.
-                if fd is not None and not select.select([], [fd], [], 0)[1]:
-                    break
-                n = port.write(bytes(self._tx[:4096]))
-                if not n:
-                    break
-                del self._tx[:n]
-                self.stats["bytes_out"] += n
-        except (OSError, serial.SerialException):
-            self._io_failed(self.clock())

@@ -36,8 +36,8 @@ from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.runtime import RobotRuntime
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import ON_GROUND, Sensors
-from fieldkit.sim.kinematics import Vehicle
 from fieldkit.sim.radio import LinkModel, RadioModel
+from fieldkit.vehicle.kinematics import Vehicle
 
 _log = logging.getLogger("fieldkit.sim")
 

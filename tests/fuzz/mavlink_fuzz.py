@@ -36,8 +36,9 @@ from typing import Any
 
 from pymavlink.dialects.v20 import all as mavlink2
 
-from fieldkit.autopilot.link import Autopilot, FrameReader
-from fieldkit.autopilot.vehicle_sim import PtyPair, open_pty
+from fieldkit.vehicle.link import Autopilot
+from fieldkit.vehicle.mavlink import FrameReader
+from fieldkit.vehicle.pty import PtyPair, open_pty
 
 from . import runner
 

@@ -40,6 +40,7 @@ import serial
 
 from fieldkit.radio import xbee as X
 from fieldkit.radio import xbeemav as M
+from fieldkit.radio.xbee_serial import XBeeRadio
 
 from . import runner
 
@@ -466,7 +467,7 @@ def check_radio(rng: random.Random, scenario: dict[str, object]) -> str | None:
     api_mode = scenario["api_mode"]
     assert isinstance(serials, list) and isinstance(stream, bytes) and isinstance(api_mode, int)
     port = serial.serial_for_url("loop://", timeout=0)
-    radio = M.XBeeRadio(
+    radio = XBeeRadio(
         port,
         9,
         api_mode=api_mode,

@@ -1,33 +1,24 @@
-"""The field node's link to its autopilot: MAVLink through pymavlink, driven by the node's loop.
+"""The autopilot protocol core: MAVLink to an ArduPilot or PX4 autopilot, without I/O.
 
-    ap = Autopilot.from_profile(load_profile("solo"))      # opens profile.autopilot.url
-    ap.wait_heartbeat(10.0)                                 # start-up only: bounded waits
-    ap.request_streams(10.0)
-    ap.wait_gps_fix(ap.gps_fix_timeout_s)
-    takeoff = ap.takeoff(5.0)                               # returns at once: a Command
-    while running:                                          # the node's 10 Hz loop
-        ap.poll()                                           # read, ACKs, retries, heartbeat
-        t = ap.telemetry                                    # lat, lon, alt_rel_m, armed, mode...
-        for event in ap.drain_events():                     # command results, heartbeat loss,
-            log(event)                                      # mode changes, pilot override
-        ap.goto(lat, lon, alt)                              # a setpoint: sent now, no ACK
+`AutopilotCore` is the node's side of the conversation in the manner of h11: bytes from the
+autopilot go in (`receive_data`), time moves on (`tick`, with the injected `clock`), and the
+MAVLink frames to send come out (`data_to_send`); it never opens, reads or writes a port.
+`fieldkit.vehicle.link.Autopilot` is the same core on a pymavlink connection.
 
-Any pymavlink connection string works: a serial device (`/dev/ttyUSB0` with `baud`), a pty,
-`tcp:HOST:PORT` (ArduPilot SITL's 5760), `udpin:0.0.0.0:14550`. Nothing here blocks the loop:
-`poll()` reads what the line holds (it waits at most its `timeout`, 0 by default), and every
-command is a small state machine that `poll()` moves on: send, await the COMMAND_ACK until a
-deadline, resend up to `max_attempts` times, then report. Only one COMMAND_LONG is in flight at
-a time because a COMMAND_ACK names only the command id, so two in flight could not be told
-apart; the rest wait in a FIFO queue. Safety commands (`land`, `rtl`, `hold`) go to the front
-of the queue. Setpoints (`goto`) have no ACK in MAVLink and are sent at once.
+    core = AutopilotCore(profile=load_profile("solo"), clock=clock)
+    core.receive_data(line_bytes)                   # telemetry, ACKs, heartbeats...
+    takeoff = core.takeoff(5.0)                     # returns at once: a Command
+    core.tick()                                     # retries, timeouts, our heartbeat
+    write(core.data_to_send())
 
-Time comes from an injectable `clock` (default `time.monotonic`), so tests drive deadlines,
+Every command is a small state machine that `tick()` moves on: send, await the COMMAND_ACK
+until a deadline, resend up to `max_attempts` times, then report. Only one COMMAND_LONG is in
+flight at a time because a COMMAND_ACK names only the command id, so two in flight could not
+be told apart; the rest wait in a FIFO queue. Safety commands (`land`, `rtl`, `hold`) go to
+the front of the queue. Setpoints (`goto`) have no ACK in MAVLink and are sent at once.
+
+Time comes from the injected `clock` (default `time.monotonic`), so tests drive deadlines,
 retries and heartbeat ages without sleeping.
-
-The bytes on the line are decoded by `FrameReader`: pymavlink's parser, plus a rescan after
-each rejected frame. Plain pymavlink drops a whole "frame" when a stray magic byte in line noise
-announces one, losing up to 280 bytes of good frames behind it; the rescan recovers them, so
-garbage costs only the `bad_frames` counter.
 """
 
 from __future__ import annotations
@@ -35,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import select
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Sequence
@@ -47,6 +37,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
 
 from fieldkit.profiles import Profile
+from fieldkit.vehicle.mavlink import FrameReader, new_codec
 
 COMPANION_COMPONENT = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER
 """Our MAVLink component id: an onboard (companion) computer."""
@@ -79,81 +70,10 @@ _STREAMED = (
 _HOME_RATE_HZ = 0.5
 # STATUSTEXT this recent is quoted in a command failure ("PreArm: Need 3D Fix").
 _STATUSTEXT_WINDOW_S = 2.0
-# A single poll reads at most this much, so that a flooded line cannot starve the loop.
-_MAX_READ_PER_POLL = 1 << 16
-_READ_CHUNK = 4096
 
 
 class AutopilotError(Exception):
     """The autopilot link cannot do what was asked; the message says what and why."""
-
-
-def use_mavlink2(conn: Any, source_system: int, source_component: int) -> Any:
-    """Give a pymavlink connection our own MAVLink 2 codec (it parses v1 frames too).
-
-    pymavlink picks its codec from process-wide state (the MAVLINK20 variable at import) and
-    swaps it when the first v2 byte arrives; a stream that starts with v1 frames and later
-    carries v2 would then be lost. A codec of our own per connection avoids both problems.
-    Returns the codec; `conn.mav` is set to it as well.
-    """
-    mav = mavlink2.MAVLink(conn, srcSystem=source_system, srcComponent=source_component)
-    mav.robust_parsing = True
-    conn.mav = mav
-    conn.first_byte = False  # no automatic protocol switch: we already speak both
-    conn.WIRE_PROTOCOL_VERSION = "2.0"
-    return mav
-
-
-class FrameReader:
-    """MAVLink frames out of a byte stream, resynchronising after every rejected frame."""
-
-    def __init__(self, mav: Any) -> None:
-        """Decode with `mav`, a pymavlink `MAVLink` codec (robust parsing is switched on)."""
-        mav.robust_parsing = True
-        self.mav = mav
-        self.messages = 0  # frames decoded into known messages
-        self.bad_frames = 0  # runs of bytes outside frames, and frames that failed their checks
-        self.unknown_frames = 0  # frames of ids the dialect does not know (no CRC check)
-
-    def feed(self, data: bytes) -> list[Any]:
-        """Decode `data` (appended to what came before); returns the good messages in order."""
-        mav = self.mav
-        out: list[Any] = []
-        chunk = data
-        while True:
-            try:
-                m = mav.parse_char(chunk)
-            except Exception:  # a hostile frame must not stop the link
-                # pymavlink moved past the frame before decoding it: count it and go on.
-                self.bad_frames += 1
-                chunk = b""
-                continue
-            chunk = b""
-            if m is None:
-                return out
-            msg_id = m.get_msgId()
-            if msg_id == mavlink2.MAVLINK_MSG_ID_BAD_DATA:
-                self.bad_frames += 1
-                if not str(m.reason).startswith("Bad prefix"):
-                    # A stray magic byte made pymavlink swallow the bytes of a "frame": good
-                    # frames may start anywhere after that byte, so look again from there.
-                    self._rescan(m.get_msgbuf())
-            elif msg_id == mavlink2.MAVLINK_MSG_ID_UNKNOWN:
-                # No CRC check is possible without the message definition: it may be noise
-                # hiding good frames, so rescan its bytes as well.
-                self.unknown_frames += 1
-                self._rescan(m.get_msgbuf())
-            else:
-                self.messages += 1
-                out.append(m)
-
-    def _rescan(self, frame: bytes | bytearray) -> None:
-        """Put a rejected frame's bytes, but its first, back in front of the parser."""
-        mav = self.mav
-        rest = mav.buf[mav.buf_index :]
-        mav.buf = bytearray(frame[1:]) + rest
-        mav.buf_index = 0
-        mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
 
 
 @dataclass
@@ -193,7 +113,7 @@ class Telemetry:
     statustext: str | None = None  # the last STATUSTEXT
 
     def copy(self) -> Telemetry:
-        """An independent snapshot (`poll()` keeps updating the link's own object)."""
+        """An independent snapshot (the link keeps updating its own object)."""
         return dataclasses.replace(self)
 
 
@@ -222,7 +142,7 @@ class _Step:
 
 
 class Command:
-    """One request to the autopilot: returned at once, moved on by `Autopilot.poll()`."""
+    """One request to the autopilot: returned at once, moved on by the link's `tick()`."""
 
     def __init__(
         self,
@@ -270,7 +190,7 @@ class Command:
 
 @dataclass(frozen=True)
 class Event:
-    """Something the node should know (and log): see `Autopilot.drain_events`."""
+    """Something the node should know (and log): see `AutopilotCore.drain_events`."""
 
     time: float  # link clock
     kind: str  # "command", "heartbeat", "mode", "armed", "override", "statustext", "link"
@@ -303,14 +223,13 @@ def _is_vehicle_heartbeat(msg: Any) -> bool:
     )
 
 
-class Autopilot:
-    """The node's MAVLink link to one autopilot: telemetry in, checked commands out."""
+class AutopilotCore:
+    """The node's MAVLink conversation with one autopilot: telemetry in, checked commands out."""
 
     def __init__(
         self,
-        url: str,
         *,
-        baud: int = 57600,
+        url: str = "autopilot",
         profile: Profile | None = None,
         clock: Callable[[], float] = time.monotonic,
         source_system: int = GCS_SYSTEM,
@@ -324,17 +243,17 @@ class Autopilot:
         override_pwm: int = 1800,
         target_system: int | None = None,
     ) -> None:
-        """Open `url` (any pymavlink connection string); raises AutopilotError if it fails.
+        """A link that has heard nothing yet; `url` only names it in event texts.
 
         `profile` gives the mode names, the heartbeat timeout and whether the robot is a
-        ground robot (no takeoff). `heartbeat_interval_s`: how often `poll()` sends our own
+        ground robot (no takeoff). `heartbeat_interval_s`: how often `tick()` sends our own
         heartbeat (None: only `send_heartbeat()`). RC channel `override_channel` at or
         above `override_pwm` microseconds reads as the pilot taking over. `target_system`
         pins the autopilot's system id; by default the first autopilot heartbeat decides.
         """
         if max_attempts < 1:
             raise ValueError("max_attempts must be >= 1")
-        self.url = url
+        self.url = url  # names the link in event texts
         self.profile = profile
         self._clock = clock
         self.ack_timeout_s = ack_timeout_s
@@ -370,20 +289,11 @@ class Autopilot:
         self.source_system = source_system
         self.source_component = source_component
 
-        try:
-            self._conn = mavutil.mavlink_connection(
-                url,
-                baud=baud,
-                source_system=source_system,
-                source_component=source_component,
-            )
-        except Exception as e:  # serial, socket and value errors alike
-            raise AutopilotError(
-                f"cannot open the autopilot link {url}: {describe_error(e)}"
-            ) from e
-        self._mav = use_mavlink2(self._conn, source_system, source_component)
-        self._mav.file = self  # our write() counts bytes and survives a dead port
+        # Every frame the codec encodes goes through `write`: queued here, written at once by
+        # a transport that overrides it.
+        self._mav = new_codec(self, source_system, source_component)
         self._reader = FrameReader(self._mav)
+        self._outbox = bytearray()
 
         self.telemetry = Telemetry()
         self.target_system: int | None = None
@@ -407,52 +317,40 @@ class Autopilot:
         self._rc_seen_full = False  # RC_CHANNELS seen: ignore the older RC_CHANNELS_RAW
         self._t0 = clock()
 
-    @classmethod
-    def from_profile(cls, profile: Profile, url: str | None = None, **kwargs: Any) -> Autopilot:
-        """A link as the profile says (`autopilot.url`, `autopilot.baud`), or to `url`."""
-        if profile.autopilot.flavour == "dji":
-            raise AutopilotError(
-                f"{profile.name}: the DJI Onboard SDK does not speak MAVLink (flavour dji)"
-            )
-        return cls(
-            url if url is not None else profile.autopilot.url,
-            baud=profile.autopilot.baud,
-            profile=profile,
-            **kwargs,
-        )
+    # ------------------------------------------------------------------ bytes in and out
 
-    # ------------------------------------------------------------------ lifecycle
+    def receive_data(self, data: bytes) -> int:
+        """Handle bytes from the autopilot (any split of the stream); good messages handled.
 
-    def close(self) -> None:
-        """Close the port; pending commands are cancelled."""
-        self.cancel_all("link closed")
-        try:
-            self._conn.close()
-        except Exception:  # closing a dead port must not fail
-            pass
+        Never raises on what the line holds: a message that cannot be used costs a link error.
+        """
+        self._link_failing = False
+        self.bytes_received += len(data)
+        now = self._clock()
+        handled = 0
+        for msg in self._reader.feed(data):
+            try:
+                self._handle(msg, now)
+            except Exception as e:  # a hostile message must not stop the node's loop
+                self._link_error(f"cannot use {msg.get_type()}: {describe_error(e)}")
+                continue
+            handled += 1
+        return handled
 
-    def __enter__(self) -> Autopilot:
-        """Use as a context manager: closed on exit."""
-        return self
+    def tick(self) -> None:
+        """Move time on: our heartbeat when due, heartbeat-loss events, command deadlines."""
+        self._tick(self._clock())
 
-    def __exit__(self, *exc: object) -> None:
-        """Close the link."""
-        self.close()
-
-    def fileno(self) -> int | None:
-        """The descriptor to select() on (None for transports without one)."""
-        fd = getattr(self._conn, "fd", None)
-        return fd if isinstance(fd, int) and fd >= 0 else None
-
-    # pymavlink's codec writes through this (we are its `file`).
     def write(self, buf: bytes | bytearray) -> None:
-        """Send raw bytes on the link (used by the codec); errors are counted, not raised."""
-        try:
-            self._conn.write(bytes(buf))
-        except Exception as e:  # a dead port costs a counter, not the loop
-            self._link_error(f"write failed: {describe_error(e)}")
-            return
+        """Where the codec puts each encoded frame: queued for `data_to_send`."""
+        self._outbox += buf
         self.bytes_sent += len(buf)
+
+    def data_to_send(self) -> bytes:
+        """The frames encoded since the last call, to be written to the autopilot."""
+        out = bytes(self._outbox)
+        self._outbox.clear()
+        return out
 
     # ------------------------------------------------------------------ state views
 
@@ -509,55 +407,6 @@ class Autopilot:
             self._link_failing = True
             self._event("link", f"{self.url}: {text}")
 
-    # ------------------------------------------------------------------ the loop
-
-    def poll(self, timeout: float = 0.0) -> int:
-        """Read and handle everything available, then move commands and heartbeats on.
-
-        Waits up to `timeout` seconds for the first byte when nothing is there yet (0: not
-        at all). Returns the number of good messages handled.
-        """
-        n = self._read(timeout)
-        now = self._clock()
-        self._tick(now)
-        return n
-
-    def _read(self, timeout: float) -> int:
-        conn = self._conn
-        fd = self.fileno()
-        if timeout > 0 and fd is not None:
-            try:
-                select.select([fd], [], [], timeout)
-            except (OSError, ValueError) as e:
-                self._link_error(f"select failed: {describe_error(e)}")
-                return 0
-        handled = 0
-        total = 0
-        while total < _MAX_READ_PER_POLL:
-            try:
-                data = conn.recv(_READ_CHUNK)
-            except Exception as e:  # pyserial and socket errors alike: the link failed
-                self._link_error(f"read failed: {describe_error(e)}")
-                break
-            if not data:
-                break
-            if isinstance(data, str):  # some pymavlink transports return "" or str
-                data = data.encode("latin-1")
-            self._link_failing = False
-            total += len(data)
-            self.bytes_received += len(data)
-            now = self._clock()
-            for msg in self._reader.feed(data):
-                try:
-                    self._handle(msg, now)
-                except Exception as e:  # a hostile message must not stop the node's loop
-                    self._link_error(f"cannot use {msg.get_type()}: {describe_error(e)}")
-                    continue
-                handled += 1
-            if fd is None:
-                break  # no descriptor: cannot tell "more" from "no more"; next poll reads on
-        return handled
-
     def _tick(self, now: float) -> None:
         if self.heartbeat_interval_s is not None and (
             self._last_hb_sent is None or now - self._last_hb_sent >= self.heartbeat_interval_s
@@ -575,89 +424,11 @@ class Autopilot:
         self._advance(now)
 
     def send_heartbeat(self) -> None:
-        """Send our heartbeat now (a GCS/companion one; `poll()` does it every second)."""
+        """Send our heartbeat now (a GCS/companion one; `tick()` does it every second)."""
         self._last_hb_sent = self._clock()
         self._mav.heartbeat_send(
             mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, mavlink2.MAV_STATE_ACTIVE
         )
-
-    # ------------------------------------------------------------------ blocking helpers
-
-    def wait_heartbeat(
-        self,
-        timeout: float,
-        *,
-        idle: Callable[[], None] | None = None,
-        poll_interval: float = 0.05,
-    ) -> Telemetry:
-        """Poll until a vehicle heartbeat arrives; AutopilotError after `timeout` seconds.
-
-        For start-up, not for the loop. `idle` is called between polls (a test steps its
-        simulated vehicle there); each poll waits up to `poll_interval` for data.
-        """
-        ok = self._wait(
-            lambda: self.telemetry.last_heartbeat is not None, timeout, idle, poll_interval
-        )
-        if not ok:
-            raise AutopilotError(
-                f"no heartbeat from the autopilot after {timeout:g} s on {self.url} "
-                f"({self.bytes_received} bytes received, {self.bad_frames} bad frames)"
-            )
-        return self.telemetry
-
-    def wait_gps_fix(
-        self,
-        timeout: float,
-        *,
-        min_fix: int = 3,
-        idle: Callable[[], None] | None = None,
-        poll_interval: float = 0.05,
-    ) -> Telemetry:
-        """Poll until the GPS fix type reaches `min_fix` (3: 3D); AutopilotError on timeout."""
-        ok = self._wait(
-            lambda: self.telemetry.gps_fix_type >= min_fix, timeout, idle, poll_interval
-        )
-        if not ok:
-            t = self.telemetry
-            if t.satellites is None:
-                detail = "no GPS_RAW_INT received"
-            else:
-                detail = f"fix type {t.gps_fix_type}, {t.satellites} satellites"
-            raise AutopilotError(f"no GPS fix after {timeout:g} s ({detail})")
-        return self.telemetry
-
-    def wait_command(
-        self,
-        command: Command,
-        timeout: float,
-        *,
-        idle: Callable[[], None] | None = None,
-        poll_interval: float = 0.05,
-    ) -> Command:
-        """Poll until `command` is over; AutopilotError if it failed or is still pending."""
-        ok = self._wait(lambda: command.done, timeout, idle, poll_interval)
-        if not ok:
-            raise AutopilotError(f"{command.name}: not finished after {timeout:g} s")
-        if not command.ok:
-            raise AutopilotError(command.error or f"{command.name}: {command.status.value}")
-        return command
-
-    def _wait(
-        self,
-        cond: Callable[[], bool],
-        timeout: float,
-        idle: Callable[[], None] | None,
-        poll_interval: float,
-    ) -> bool:
-        deadline = self._clock() + timeout
-        while True:
-            self.poll(poll_interval)
-            if cond():
-                return True
-            if self._clock() >= deadline:
-                return False
-            if idle is not None:
-                idle()
 
     # ------------------------------------------------------------------ incoming
 
@@ -1181,18 +952,6 @@ def _on_earth(lat_e7: int, lon_e7: int) -> bool:
     return -900_000_000 <= lat_e7 <= 900_000_000 and -1_800_000_000 <= lon_e7 <= 1_800_000_000
 
 
-def _percent(remaining: int) -> float | None:
-    """battery_remaining: -1 (unknown) and anything outside 0..100 read as unknown."""
-    return float(remaining) if 0 <= remaining <= 100 else None
-
-
-def _describe_hb(m: Any) -> str:
-    """Who sent a heartbeat, e.g. "ARDUPILOTMEGA, MAV_TYPE_QUADROTOR"."""
-    ap = mavlink2.enums["MAV_AUTOPILOT"].get(m.autopilot)
-    ty = mavlink2.enums["MAV_TYPE"].get(m.type)
-    return f"{ap.name if ap else m.autopilot}, {ty.name if ty else m.type}"
-
-
 def describe_error(e: BaseException) -> str:
     """An exception as a short reason: the OS error text when there is one."""
     if isinstance(e, OSError):
@@ -1205,17 +964,29 @@ def describe_error(e: BaseException) -> str:
     return str(e) or type(e).__name__
 
 
-_HANDLERS: dict[str, Callable[[Autopilot, Any, float], None]] = {
-    "GLOBAL_POSITION_INT": Autopilot._on_global_position,
-    "GPS_RAW_INT": Autopilot._on_gps_raw,
-    "ATTITUDE": Autopilot._on_attitude,
-    "VFR_HUD": Autopilot._on_vfr_hud,
-    "SYS_STATUS": Autopilot._on_sys_status,
-    "BATTERY_STATUS": Autopilot._on_battery_status,
-    "HOME_POSITION": Autopilot._on_home,
-    "EXTENDED_SYS_STATE": Autopilot._on_extended_state,
-    "RC_CHANNELS": Autopilot._on_rc_channels,
-    "RC_CHANNELS_RAW": Autopilot._on_rc_channels_raw,
-    "STATUSTEXT": Autopilot._on_statustext,
-    "COMMAND_ACK": Autopilot._on_ack,
+def _percent(remaining: int) -> float | None:
+    """battery_remaining: -1 (unknown) and anything outside 0..100 read as unknown."""
+    return float(remaining) if 0 <= remaining <= 100 else None
+
+
+def _describe_hb(m: Any) -> str:
+    """Who sent a heartbeat, e.g. "ARDUPILOTMEGA, MAV_TYPE_QUADROTOR"."""
+    ap = mavlink2.enums["MAV_AUTOPILOT"].get(m.autopilot)
+    ty = mavlink2.enums["MAV_TYPE"].get(m.type)
+    return f"{ap.name if ap else m.autopilot}, {ty.name if ty else m.type}"
+
+
+_HANDLERS: dict[str, Callable[[AutopilotCore, Any, float], None]] = {
+    "GLOBAL_POSITION_INT": AutopilotCore._on_global_position,
+    "GPS_RAW_INT": AutopilotCore._on_gps_raw,
+    "ATTITUDE": AutopilotCore._on_attitude,
+    "VFR_HUD": AutopilotCore._on_vfr_hud,
+    "SYS_STATUS": AutopilotCore._on_sys_status,
+    "BATTERY_STATUS": AutopilotCore._on_battery_status,
+    "HOME_POSITION": AutopilotCore._on_home,
+    "EXTENDED_SYS_STATE": AutopilotCore._on_extended_state,
+    "RC_CHANNELS": AutopilotCore._on_rc_channels,
+    "RC_CHANNELS_RAW": AutopilotCore._on_rc_channels_raw,
+    "STATUSTEXT": AutopilotCore._on_statustext,
+    "COMMAND_ACK": AutopilotCore._on_ack,
 }

@@ -268,6 +268,8 @@ class Vehicle:
         if self.status == ON_GROUND:
             return False
         self.hold()  # out of a takeoff or a landing: in the air, braking
+        if self.status != IN_AIR:
+            return False  # it had not left the ground yet
         climb = max(self.z, alt)
         self.goto(self.x, self.y, climb)
         self._rtl = (_RTL_CLIMB, x, y, climb)

@@ -1,0 +1,77 @@
+"""The vehicle side of the field node: autopilot protocols, their transports, their simulators.
+
+- `autopilot.AutopilotCore`: the MAVLink conversation with ArduPilot/PX4, without I/O;
+  commands checked against their COMMAND_ACK and retried;
+- `link.Autopilot`: that core on any pymavlink URL, non-blocking, polled from the node's loop;
+- `mavlink`: the codec and `FrameReader`, the resynchronising MAVLink parser;
+- `pty`: `open_pty` and `PtyPair`, the line between a simulated machine and its driver;
+- `sim.ardupilot.SimArduPilot` / `sim.vehicle.SimVehicle`: a vehicle that answers like
+  ArduCopter or ArduPilot Rover, without I/O / on a port (real time for `fieldkit vehicle-sim`).
+
+The names below are loaded on first use: pymavlink takes half a second to import, and a caller
+that wants only a pty should not pay for it.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from fieldkit.vehicle.autopilot import (
+        AutopilotCore,
+        AutopilotError,
+        Command,
+        CommandStatus,
+        Event,
+        Telemetry,
+    )
+    from fieldkit.vehicle.link import Autopilot
+    from fieldkit.vehicle.mavlink import FrameReader
+    from fieldkit.vehicle.pty import PtyPair, open_pty
+    from fieldkit.vehicle.sim.ardupilot import SimArduPilot, SimFaults, VehicleSimError
+    from fieldkit.vehicle.sim.vehicle import SimVehicle
+
+_WHERE = {
+    "Autopilot": "link",
+    "AutopilotCore": "autopilot",
+    "AutopilotError": "autopilot",
+    "Command": "autopilot",
+    "CommandStatus": "autopilot",
+    "Event": "autopilot",
+    "FrameReader": "mavlink",
+    "Telemetry": "autopilot",
+    "PtyPair": "pty",
+    "open_pty": "pty",
+    "SimArduPilot": "sim.ardupilot",
+    "SimFaults": "sim.ardupilot",
+    "VehicleSimError": "sim.ardupilot",
+    "SimVehicle": "sim.vehicle",
+}
+
+__all__ = [
+    "Autopilot",
+    "AutopilotCore",
+    "AutopilotError",
+    "Command",
+    "CommandStatus",
+    "Event",
+    "FrameReader",
+    "PtyPair",
+    "SimArduPilot",
+    "SimFaults",
+    "SimVehicle",
+    "Telemetry",
+    "VehicleSimError",
+    "open_pty",
+]
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name from its module on first use."""
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value

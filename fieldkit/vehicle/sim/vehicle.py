@@ -1,0 +1,202 @@
+"""`SimVehicle`: the simulated ArduPilot (`SimArduPilot`) on a pty, a serial port or a URL.
+
+    pty = open_pty()                                   # or any pymavlink URL: "tcpin:0.0.0.0:5760"
+    sim = SimVehicle(load_profile("solo"), pty.master, home=(45.5049, -73.6133))
+    ap = Autopilot(pty.slave_path, profile=...)        # the node's link, on the other end
+    sim.step(0.1)                                      # link serviced, physics by 0.1 s
+
+Everything the vehicle does is `fieldkit.vehicle.sim.ardupilot.SimArduPilot`'s; `SimVehicle`
+extends it with the port only (so callers keep one object with the whole simulator's state):
+`service()` reads the line into `receive_data`, each frame is written the moment it is encoded
+(a full pty drops it, as a UART would), and `run(rate_hz, stop)` paces the steps in real time
+for `fieldkit vehicle-sim`.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+import time
+from collections.abc import Callable
+
+from pymavlink import mavutil
+
+from fieldkit.profiles import Profile
+from fieldkit.vehicle.autopilot import describe_error
+from fieldkit.vehicle.mavlink import adopt_codec
+from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME, SimArduPilot, VehicleSimError
+
+
+class _FdPort:
+    """The vehicle's end of a pty: a raw file descriptor it does not own."""
+
+    def __init__(self, fd: int) -> None:
+        os.set_blocking(fd, False)
+        self.fd = fd
+
+    def fileno(self) -> int | None:
+        """The descriptor."""
+        return self.fd
+
+    def read(self) -> bytes:
+        """What the line holds (b"" if nothing or nobody on the other end)."""
+        try:
+            return os.read(self.fd, 4096)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError:
+            return b""  # EIO: nobody has the slave open; nothing to read
+
+    def write(self, data: bytes) -> int:
+        """Bytes written; a full line takes fewer, as a UART's buffer would."""
+        try:
+            return os.write(self.fd, data)
+        except (BlockingIOError, InterruptedError):
+            return 0
+        except OSError:
+            return 0
+
+    def close(self) -> None:
+        """Nothing: the caller owns the descriptor."""
+
+
+class _UrlPort:
+    """Any pymavlink connection: a serial device, tcpin:, udpout:..."""
+
+    def __init__(self, url: str, baud: int, sysid: int, compid: int) -> None:
+        self.conn = mavutil.mavlink_connection(
+            url, baud=baud, source_system=sysid, source_component=compid
+        )
+
+    def fileno(self) -> int | None:
+        """The connection's descriptor, if it has one."""
+        fd = getattr(self.conn, "fd", None)
+        return fd if isinstance(fd, int) and fd >= 0 else None
+
+    def read(self) -> bytes:
+        """What the connection holds."""
+        try:
+            data = self.conn.recv(4096)
+        except Exception:  # a closed socket or serial port reads as silence
+            return b""
+        if isinstance(data, str):
+            data = data.encode("latin-1")
+        return data or b""
+
+    def write(self, data: bytes) -> int:
+        """Bytes written (0 if nobody is listening)."""
+        try:
+            self.conn.write(data)
+        except Exception:  # nobody listening: the bytes are lost, as on a real line
+            return 0
+        return len(data)
+
+    def close(self) -> None:
+        """Close the connection."""
+        try:
+            self.conn.close()
+        except Exception:  # closing a dead port must not fail
+            pass
+
+
+class SimVehicle(SimArduPilot):
+    """A simulated ArduPilot vehicle on a line: a pty master or a pymavlink connection."""
+
+    def __init__(
+        self,
+        profile: Profile,
+        device: str | int,
+        *,
+        home: tuple[float, float] = DEFAULT_HOME,
+        home_alt_m: float = 50.0,
+        baud: int = 57600,
+        sysid: int = 1,
+        compid: int = 1,
+        gps_fix_delay_s: float = 0.0,
+        default_rate_hz: float = 0.0,
+        auto_disarm_s: float | None = 10.0,
+        rtl_alt_m: float = 15.0,
+        seed: int = 0,
+    ) -> None:
+        """A disarmed vehicle at `home`, talking on `device`.
+
+        `device` is a pty master descriptor (see `fieldkit.vehicle.pty.open_pty`; not closed by
+        `close()`), or a pymavlink connection string: a serial device path,
+        "tcpin:0.0.0.0:5760", "udpout:127.0.0.1:14550"... The other options are
+        `SimArduPilot`'s.
+        """
+        super().__init__(
+            profile,
+            home=home,
+            home_alt_m=home_alt_m,
+            sysid=sysid,
+            compid=compid,
+            gps_fix_delay_s=gps_fix_delay_s,
+            default_rate_hz=default_rate_hz,
+            auto_disarm_s=auto_disarm_s,
+            rtl_alt_m=rtl_alt_m,
+            seed=seed,
+        )
+        if isinstance(device, int):
+            self.port: _FdPort | _UrlPort = _FdPort(device)
+            self.device = f"fd {device}"
+        else:
+            try:
+                url_port = _UrlPort(device, baud, sysid, compid)
+            except Exception as e:  # serial, socket and value errors alike
+                raise VehicleSimError(f"cannot open port {device}: {describe_error(e)}") from e
+            adopt_codec(url_port.conn, self._mav)
+            self.port = url_port
+            self.device = device
+
+    def step(self, dt: float) -> None:
+        """Service the link (no waiting), advance the physics by `dt`, send what is due."""
+        self.service()
+        super().step(dt)
+
+    def run(
+        self, rate_hz: float, stop: threading.Event, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        """Step at `rate_hz` in real time until `stop` is set; the link is served in between."""
+        period = 1.0 / rate_hz
+        next_t = clock()
+        while not stop.is_set():
+            now = clock()
+            if now >= next_t:
+                self.step(period)
+                next_t += period
+                if next_t < now - 1.0:
+                    next_t = now  # suspended for a while: resume, do not race to catch up
+                continue
+            wait = min(next_t - now, 0.05)
+            if self.port.fileno() is None:
+                stop.wait(wait)
+            self.service(wait)
+
+    def service(self, timeout: float = 0.0) -> int:
+        """Read and handle what the link holds, waiting up to `timeout` for the first byte."""
+        fd = self.port.fileno()
+        if timeout > 0 and fd is not None:
+            try:
+                select.select([fd], [], [], timeout)
+            except (OSError, ValueError):
+                return 0
+        handled = 0
+        total = 0
+        while total < 1 << 16:
+            data = self.port.read()
+            if not data:
+                break
+            total += len(data)
+            handled += self.receive_data(data)
+        return handled
+
+    def close(self) -> None:
+        """Close the port this vehicle opened (a pty master given as a descriptor stays open)."""
+        self.port.close()
+
+    def _transmit(self, frame: bytes) -> None:
+        sent = self.port.write(frame)
+        self.bytes_sent += sent
+        self.bytes_dropped += len(frame) - sent

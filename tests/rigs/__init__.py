@@ -1,0 +1,193 @@
+"""Test rigs for the vehicle side: a simulated vehicle and the node's link, wired together.
+
+- `SimRig`: a `SimVehicle` and an `Autopilot` on the two ends of a real pty;
+- `MemoryRig`: the same pair as protocol cores (`SimArduPilot`, `AutopilotCore`) passing bytes
+  in memory: no port, no kernel, no waiting.
+
+Both step the vehicle and the link in lockstep on a simulated clock, in the same order, so the
+same scenario gives the same bytes through either.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from fieldkit.profiles import Profile, load_profile
+from fieldkit.vehicle.autopilot import AutopilotCore
+from fieldkit.vehicle.link import Autopilot
+from fieldkit.vehicle.pty import open_pty
+from fieldkit.vehicle.sim.ardupilot import SimArduPilot
+from fieldkit.vehicle.sim.vehicle import SimVehicle
+
+
+class SimRig:
+    """A `SimVehicle` and an `Autopilot` on the two ends of a pty, stepped in lockstep.
+
+    The link's clock is the simulated time (`now`), so its deadlines, retries and heartbeat
+    ages follow the simulation. Each `tick()` steps the vehicle, waits until every byte it
+    sent has reached the link, polls the link, then waits until every byte the link sent has
+    reached the vehicle (which handles it at once). Waiting is on the bytes, with a wall-clock
+    deadline, never on time: the exchange is deterministic and as fast as the machine allows.
+    """
+
+    def __init__(
+        self,
+        profile: str | Profile = "solo",
+        *,
+        dt: float = 0.1,
+        sync_timeout_s: float = 5.0,
+        link_options: dict[str, Any] | None = None,
+        **sim_options: Any,
+    ) -> None:
+        """Open a pty, put a SimVehicle (with `sim_options`) and an Autopilot on it."""
+        self.profile = load_profile(profile) if isinstance(profile, str) else profile
+        self.dt = dt
+        self.now = 0.0
+        self.sync_timeout_s = sync_timeout_s
+        self.pty = open_pty()
+        try:
+            self.sim = SimVehicle(self.profile, self.pty.master, **sim_options)
+            self.link = Autopilot(
+                self.pty.slave_path,
+                profile=self.profile,
+                clock=self.clock,
+                **(link_options or {}),
+            )
+        except BaseException:
+            self.pty.close()
+            raise
+
+    def clock(self) -> float:
+        """The simulated time, seconds."""
+        return self.now
+
+    def tick(self) -> None:
+        """One step of the vehicle and one poll of the link, every byte delivered both ways."""
+        self.sim.step(self.dt)
+        self.now += self.dt
+        deadline = time.monotonic() + self.sync_timeout_s
+        self.link.poll()
+        while self.link.bytes_received < self.sim.bytes_sent:
+            self._check(deadline, "vehicle -> link")
+            self.link.poll(0.1)
+        while self.sim.bytes_received < self.link.bytes_sent:
+            self._check(deadline, "link -> vehicle")
+            self.sim.service(0.1)
+
+    def _check(self, deadline: float, way: str) -> None:
+        if time.monotonic() > deadline:
+            raise TimeoutError(
+                f"{way}: bytes not delivered after {self.sync_timeout_s:g} s "
+                f"(vehicle sent {self.sim.bytes_sent}, link read {self.link.bytes_received}; "
+                f"link sent {self.link.bytes_sent}, vehicle read {self.sim.bytes_received})"
+            )
+
+    def run_for(self, seconds: float) -> None:
+        """Tick for `seconds` of simulated time."""
+        for _ in range(round(seconds / self.dt)):
+            self.tick()
+
+    def run_until(self, cond: Callable[[], bool], seconds: float) -> bool:
+        """Tick until `cond()` holds (True) or `seconds` of simulated time pass (False)."""
+        for _ in range(round(seconds / self.dt)):
+            if cond():
+                return True
+            self.tick()
+        return cond()
+
+    def connect(self, rate_hz: float = 10.0, timeout_s: float = 10.0) -> None:
+        """Wait for the heartbeat and get the streams going at `rate_hz`."""
+        self.link.wait_heartbeat(timeout_s, idle=self.tick, poll_interval=0.0)
+        cmd = self.link.request_streams(rate_hz)
+        self.link.wait_command(cmd, timeout_s, idle=self.tick, poll_interval=0.0)
+        self.tick()
+
+    def close(self) -> None:
+        """Close the link, the vehicle and the pty."""
+        self.link.close()
+        self.sim.close()
+        self.pty.close()
+
+    def __enter__(self) -> SimRig:
+        """Use as a context manager: closed on exit."""
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        """Close everything."""
+        self.close()
+
+
+class MemoryRig:
+    """A `SimArduPilot` and an `AutopilotCore` passing bytes in memory, stepped in lockstep.
+
+    A tick does what `SimRig.tick` does, minus the pty: the vehicle takes what the link wrote
+    since the last tick (a `SimVehicle` reads it at the start of its step), steps, the link
+    reads everything the vehicle sent and ticks, and the vehicle handles what the link wrote.
+    """
+
+    def __init__(
+        self,
+        profile: str | Profile = "solo",
+        *,
+        dt: float = 0.1,
+        link_options: dict[str, Any] | None = None,
+        **sim_options: Any,
+    ) -> None:
+        """A SimArduPilot (with `sim_options`) and an AutopilotCore on the simulated clock."""
+        self.profile = load_profile(profile) if isinstance(profile, str) else profile
+        self.dt = dt
+        self.now = 0.0
+        self.sim = SimArduPilot(self.profile, **sim_options)
+        self.link = AutopilotCore(profile=self.profile, clock=self.clock, **(link_options or {}))
+
+    def clock(self) -> float:
+        """The simulated time, seconds."""
+        return self.now
+
+    def tick(self) -> None:
+        """One step of the vehicle and one tick of the link, every byte delivered both ways."""
+        self.sim.receive_data(self.link.data_to_send())
+        self.sim.step(self.dt)
+        self.now += self.dt
+        self.link.receive_data(self.sim.data_to_send())
+        self.link.tick()
+        self.sim.receive_data(self.link.data_to_send())
+
+    def run_for(self, seconds: float) -> None:
+        """Tick for `seconds` of simulated time."""
+        for _ in range(round(seconds / self.dt)):
+            self.tick()
+
+    def run_until(self, cond: Callable[[], bool], seconds: float) -> bool:
+        """Tick until `cond()` holds (True) or `seconds` of simulated time pass (False)."""
+        for _ in range(round(seconds / self.dt)):
+            if cond():
+                return True
+            self.tick()
+        return cond()
+
+    def poll(self) -> None:
+        """What `Autopilot.poll()` does between ticks: read what the vehicle sent, tick."""
+        self.link.receive_data(self.sim.data_to_send())
+        self.link.tick()
+
+    def wait(self, cond: Callable[[], bool], timeout_s: float) -> bool:
+        """`Autopilot`'s blocking waits with the rig's tick as their idle step (as `SimRig`
+        uses them): poll, test `cond`, tick, until `timeout_s` of simulated time pass."""
+        deadline = self.now + timeout_s
+        while True:
+            self.poll()
+            if cond():
+                return True
+            if self.now >= deadline:
+                return False
+            self.tick()
+
+    def connect(self, rate_hz: float = 10.0, timeout_s: float = 10.0) -> None:
+        """Wait for the heartbeat and get the streams going at `rate_hz`, as `SimRig` does."""
+        assert self.wait(lambda: self.link.telemetry.last_heartbeat is not None, timeout_s)
+        cmd = self.link.request_streams(rate_hz)
+        assert self.wait(lambda: cmd.done, timeout_s) and cmd.ok, cmd
+        self.tick()
