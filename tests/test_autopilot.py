@@ -31,8 +31,8 @@ from fieldkit.profiles import load_profile
 from fieldkit.vehicle import (
     Autopilot,
     AutopilotError,
-    Command,
     FrameReader,
+    MavCommand,
     SimVehicle,
     open_pty,
 )
@@ -61,7 +61,7 @@ def kinds(rig: SimRig) -> list[tuple[str, str]]:
     return [(e.kind, e.text) for e in rig.link.drain_events()]
 
 
-def finish(rig: SimRig, cmd: Command, seconds: float = 10.0) -> Command:
+def finish(rig: SimRig, cmd: MavCommand, seconds: float = 10.0) -> MavCommand:
     """Tick until `cmd` is over."""
     assert rig.run_until(lambda: cmd.done, seconds), f"{cmd} still pending"
     return cmd

@@ -18,7 +18,7 @@ from rigs import MemoryRig, SimRig
 
 from fieldkit import geo
 from fieldkit.profiles import load_profile
-from fieldkit.vehicle import AutopilotCore, Command, CommandStatus, SimArduPilot
+from fieldkit.vehicle import AutopilotCore, CommandStatus, MavCommand, SimArduPilot
 
 HOME = (45.5049, -73.6133)
 
@@ -38,7 +38,7 @@ def kinds(rig: MemoryRig) -> list[tuple[str, str]]:
     return [(e.kind, e.text) for e in rig.link.drain_events()]
 
 
-def finish(rig: MemoryRig, cmd: Command, seconds: float = 10.0) -> Command:
+def finish(rig: MemoryRig, cmd: MavCommand, seconds: float = 10.0) -> MavCommand:
     """Tick until `cmd` is over."""
     assert rig.run_until(lambda: cmd.done, seconds), f"{cmd} still pending"
     return cmd
@@ -222,7 +222,7 @@ def test_no_ack_at_all_is_reported_and_the_queue_moves_on(
     rig = make_rig()
     rig.connect(10.0)
     rig.sim.faults.drop_acks = 3  # every attempt of the first command
-    done: list[Command] = []
+    done: list[MavCommand] = []
     mode = rig.link.set_mode("GUIDED", on_done=done.append)
     arm = rig.link.arm(on_done=done.append)
     assert rig.link.pending == (mode, arm) and arm.status is CommandStatus.QUEUED
@@ -238,7 +238,7 @@ def test_no_ack_at_all_is_reported_and_the_queue_moves_on(
 def test_a_refused_command_is_reported(make_rig: Callable[..., MemoryRig]) -> None:
     rig = make_rig()
     airborne(rig)
-    seen: list[Command] = []
+    seen: list[MavCommand] = []
     cmd = finish(rig, rig.link.disarm(on_done=seen.append))
     assert seen == [cmd] and cmd.status is CommandStatus.FAILED
     assert cmd.error == "disarm failed: MAV_CMD_COMPONENT_ARM_DISARM refused: MAV_RESULT_FAILED"

@@ -21,10 +21,10 @@ if TYPE_CHECKING:
     from fieldkit.vehicle.autopilot import (
         AutopilotCore,
         AutopilotError,
-        Command,
+        AutopilotState,
         CommandStatus,
         Event,
-        Telemetry,
+        MavCommand,
     )
     from fieldkit.vehicle.link import Autopilot
     from fieldkit.vehicle.mavlink import FrameReader
@@ -36,11 +36,11 @@ _WHERE = {
     "Autopilot": "link",
     "AutopilotCore": "autopilot",
     "AutopilotError": "autopilot",
-    "Command": "autopilot",
+    "MavCommand": "autopilot",
     "CommandStatus": "autopilot",
     "Event": "autopilot",
     "FrameReader": "mavlink",
-    "Telemetry": "autopilot",
+    "AutopilotState": "autopilot",
     "PtyPair": "pty",
     "open_pty": "pty",
     "SimArduPilot": "sim.ardupilot",
@@ -53,7 +53,7 @@ __all__ = [
     "Autopilot",
     "AutopilotCore",
     "AutopilotError",
-    "Command",
+    "MavCommand",
     "CommandStatus",
     "Event",
     "FrameReader",
@@ -61,7 +61,7 @@ __all__ = [
     "SimArduPilot",
     "SimFaults",
     "SimVehicle",
-    "Telemetry",
+    "AutopilotState",
     "VehicleSimError",
     "open_pty",
 ]

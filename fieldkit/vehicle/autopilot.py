@@ -7,7 +7,7 @@ MAVLink frames to send come out (`data_to_send`); it never opens, reads or write
 
     core = AutopilotCore(profile=load_profile("solo"), clock=clock)
     core.receive_data(line_bytes)                   # telemetry, ACKs, heartbeats...
-    takeoff = core.takeoff(5.0)                     # returns at once: a Command
+    takeoff = core.takeoff(5.0)                     # returns at once: a MavCommand
     core.tick()                                     # retries, timeouts, our heartbeat
     write(core.data_to_send())
 
@@ -56,7 +56,7 @@ RC_UNUSED = (0, 65535)
 _MASK_POSITION_ONLY = 0b1101_1111_1000
 _MASK_POSITION_YAW = 0b1001_1111_1000
 
-# The messages `request_streams` asks for by SET_MESSAGE_INTERVAL: everything Telemetry uses.
+# The messages `request_streams` asks for by SET_MESSAGE_INTERVAL: everything AutopilotState holds.
 _STREAMED = (
     mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
     mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT,
@@ -77,7 +77,7 @@ class AutopilotError(Exception):
 
 
 @dataclass
-class Telemetry:
+class AutopilotState:
     """The autopilot's latest state as the link has seen it; None until reported."""
 
     lat: float | None = None  # degrees, GLOBAL_POSITION_INT (the autopilot's fused estimate)
@@ -112,7 +112,7 @@ class Telemetry:
     last_message: float | None = None  # link clock time of the last message from the vehicle
     statustext: str | None = None  # the last STATUSTEXT
 
-    def copy(self) -> Telemetry:
+    def copy(self) -> AutopilotState:
         """An independent snapshot (the link keeps updating its own object)."""
         return dataclasses.replace(self)
 
@@ -141,7 +141,7 @@ class _Step:
     optional: bool = False  # a refusal is a warning, not a failure of the command
 
 
-class Command:
+class MavCommand:
     """One request to the autopilot: returned at once, moved on by the link's `tick()`."""
 
     def __init__(
@@ -150,7 +150,7 @@ class Command:
         name: str,
         steps: Sequence[_Step],
         created: float,
-        on_done: Callable[[Command], None] | None = None,
+        on_done: Callable[[MavCommand], None] | None = None,
     ) -> None:
         """A queued command; the link builds these."""
         self.id = cid
@@ -183,9 +183,9 @@ class Command:
         return None if self.result is None else _result_name(self.result)
 
     def __repr__(self) -> str:
-        """E.g. `<Command 3 arm: failed (arm refused: MAV_RESULT_FAILED)>`."""
+        """E.g. `<MavCommand 3 arm: failed (arm refused: MAV_RESULT_FAILED)>`."""
         tail = f" ({self.error})" if self.error else ""
-        return f"<Command {self.id} {self.name}: {self.status.value}{tail}>"
+        return f"<MavCommand {self.id} {self.name}: {self.status.value}{tail}>"
 
 
 @dataclass(frozen=True)
@@ -195,7 +195,7 @@ class Event:
     time: float  # link clock
     kind: str  # "command", "heartbeat", "mode", "armed", "override", "statustext", "link"
     text: str
-    command: Command | None = None
+    command: MavCommand | None = None
 
 
 def _result_name(result: int) -> str:
@@ -295,7 +295,7 @@ class AutopilotCore:
         self._reader = FrameReader(self._mav)
         self._outbox = bytearray()
 
-        self.telemetry = Telemetry()
+        self.telemetry = AutopilotState()
         self.target_system: int | None = None
         self._pinned = target_system
         self.target_component: int | None = None
@@ -306,8 +306,8 @@ class AutopilotCore:
         self.events: deque[Event] = deque(maxlen=1000)
         self.mode_override = False  # the mode changed without the node asking
         self.last_target: tuple[float, float, float] | None = None  # last goto (lat, lon, alt)
-        self._queue: deque[Command] = deque()
-        self._active: Command | None = None
+        self._queue: deque[MavCommand] = deque()
+        self._active: MavCommand | None = None
         self._next_id = 1
         self._commanded_mode: str | None = None
         self._hb_lost = False
@@ -370,7 +370,7 @@ class AutopilotCore:
         return self._reader.unknown_frames
 
     @property
-    def pending(self) -> tuple[Command, ...]:
+    def pending(self) -> tuple[MavCommand, ...]:
         """Commands not finished yet: the one in flight first, then the queue."""
         head = (self._active,) if self._active is not None else ()
         return head + tuple(self._queue)
@@ -397,7 +397,7 @@ class AutopilotCore:
         self.events.clear()
         return out
 
-    def _event(self, kind: str, text: str, command: Command | None = None) -> None:
+    def _event(self, kind: str, text: str, command: MavCommand | None = None) -> None:
         self.events.append(Event(self._clock(), kind, text, command))
 
     def _link_error(self, text: str) -> None:
@@ -596,10 +596,10 @@ class AutopilotCore:
         self,
         name: str,
         steps: Sequence[_Step],
-        on_done: Callable[[Command], None] | None,
+        on_done: Callable[[MavCommand], None] | None,
         urgent: bool = False,
-    ) -> Command:
-        cmd = Command(self._next_id, name, steps, self._clock(), on_done)
+    ) -> MavCommand:
+        cmd = MavCommand(self._next_id, name, steps, self._clock(), on_done)
         self._next_id += 1
         if urgent:
             self._queue.appendleft(cmd)
@@ -610,9 +610,9 @@ class AutopilotCore:
         return cmd
 
     def _refused(
-        self, name: str, reason: str, on_done: Callable[[Command], None] | None
-    ) -> Command:
-        cmd = Command(self._next_id, name, (), self._clock(), on_done)
+        self, name: str, reason: str, on_done: Callable[[MavCommand], None] | None
+    ) -> MavCommand:
+        cmd = MavCommand(self._next_id, name, (), self._clock(), on_done)
         self._next_id += 1
         self._finish(cmd, CommandStatus.FAILED, f"{name} refused: {reason}")
         return cmd
@@ -655,7 +655,7 @@ class AutopilotCore:
             )
             # _step_failed moved on to the next step or command: look at it again.
 
-    def _start_step(self, cmd: Command, now: float) -> bool:
+    def _start_step(self, cmd: MavCommand, now: float) -> bool:
         """Send the current step (and finish the fire-and-forget ones); False when over."""
         while cmd._index < len(cmd._steps):
             step = cmd._steps[cmd._index]
@@ -667,18 +667,18 @@ class AutopilotCore:
         self._finish(cmd, CommandStatus.DONE)
         return False
 
-    def _send_step(self, cmd: Command, step: _Step, now: float) -> None:
+    def _send_step(self, cmd: MavCommand, step: _Step, now: float) -> None:
         step.send(cmd.attempts)
         cmd.attempts += 1
         cmd._deadline = now + self.ack_timeout_s
 
-    def _next_step(self, cmd: Command, now: float) -> None:
+    def _next_step(self, cmd: MavCommand, now: float) -> None:
         cmd._index += 1
         if self._start_step(cmd, now):
             return
         self._advance(now)
 
-    def _step_failed(self, cmd: Command, reason: str, now: float) -> None:
+    def _step_failed(self, cmd: MavCommand, reason: str, now: float) -> None:
         step = cmd._steps[cmd._index]
         if step.optional:
             cmd.warnings.append(reason)
@@ -687,7 +687,7 @@ class AutopilotCore:
         self._finish(cmd, CommandStatus.FAILED, f"{cmd.name} failed: {reason}")
         self._advance(now)
 
-    def _finish(self, cmd: Command, status: CommandStatus, error: str | None = None) -> None:
+    def _finish(self, cmd: MavCommand, status: CommandStatus, error: str | None = None) -> None:
         cmd.status = status
         cmd.error = error
         cmd.finished = self._clock()
@@ -703,7 +703,7 @@ class AutopilotCore:
         if cmd.on_done is not None:
             cmd.on_done(cmd)
 
-    def cancel(self, command: Command, reason: str = "cancelled") -> None:
+    def cancel(self, command: MavCommand, reason: str = "cancelled") -> None:
         """Stop waiting for `command` (an ACK that comes later is ignored)."""
         if command.done:
             return
@@ -747,14 +747,14 @@ class AutopilotCore:
         params: Sequence[float] = (),
         *,
         name: str | None = None,
-        on_done: Callable[[Command], None] | None = None,
-    ) -> Command:
+        on_done: Callable[[MavCommand], None] | None = None,
+    ) -> MavCommand:
         """Any COMMAND_LONG (up to 7 params), acknowledged and retried like the others."""
         return self._new(name or _cmd_name(cmd_id), [self._long_step(cmd_id, params)], on_done)
 
     def arm(
-        self, *, force: bool = False, on_done: Callable[[Command], None] | None = None
-    ) -> Command:
+        self, *, force: bool = False, on_done: Callable[[MavCommand], None] | None = None
+    ) -> MavCommand:
         """Arm the motors (`force` skips ArduPilot's pre-arm checks)."""
         step = self._long_step(
             mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, (1, FORCE_ARM if force else 0)
@@ -762,15 +762,17 @@ class AutopilotCore:
         return self._new("arm", [step], on_done)
 
     def disarm(
-        self, *, force: bool = False, on_done: Callable[[Command], None] | None = None
-    ) -> Command:
+        self, *, force: bool = False, on_done: Callable[[MavCommand], None] | None = None
+    ) -> MavCommand:
         """Disarm; the autopilot refuses in the air unless `force` (motors stop: it falls)."""
         step = self._long_step(
             mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, (0, FORCE_DISARM if force else 0)
         )
         return self._new("disarm", [step], on_done)
 
-    def set_mode(self, name: str, *, on_done: Callable[[Command], None] | None = None) -> Command:
+    def set_mode(
+        self, name: str, *, on_done: Callable[[MavCommand], None] | None = None
+    ) -> MavCommand:
         """Switch to the flight mode `name` (e.g. "GUIDED"), as pymavlink names modes."""
         step = self._mode_step(name)
         if isinstance(step, str):
@@ -807,7 +809,9 @@ class AutopilotCore:
         step.label = f"mode {name}"
         return step
 
-    def takeoff(self, alt: float, *, on_done: Callable[[Command], None] | None = None) -> Command:
+    def takeoff(
+        self, alt: float, *, on_done: Callable[[MavCommand], None] | None = None
+    ) -> MavCommand:
         """Climb to `alt` metres above home: the guided mode, arm, then MAV_CMD_NAV_TAKEOFF."""
         name = f"takeoff {alt:g}"
         if self.ground:
@@ -825,17 +829,17 @@ class AutopilotCore:
         ]
         return self._new(name, steps, on_done)
 
-    def land(self, *, on_done: Callable[[Command], None] | None = None) -> Command:
+    def land(self, *, on_done: Callable[[MavCommand], None] | None = None) -> MavCommand:
         """Land where it is (the profile's land mode; a ground robot holds). Goes first."""
         return self._mode_command("land", self.land_mode, on_done)
 
-    def rtl(self, *, on_done: Callable[[Command], None] | None = None) -> Command:
+    def rtl(self, *, on_done: Callable[[MavCommand], None] | None = None) -> MavCommand:
         """Return to launch (and land, for a UAV). Goes first in the queue."""
         return self._mode_command("rtl", self.rtl_mode, on_done)
 
     def hold(
-        self, *, keep_guided: bool = False, on_done: Callable[[Command], None] | None = None
-    ) -> Command:
+        self, *, keep_guided: bool = False, on_done: Callable[[MavCommand], None] | None = None
+    ) -> MavCommand:
         """Stop and keep position: the loiter/hold mode, or with `keep_guided` a position
         target at the current position (the node keeps control). Goes first in the queue."""
         if not keep_guided:
@@ -846,8 +850,8 @@ class AutopilotCore:
         return self.goto(t.lat, t.lon, t.alt_rel_m or 0.0, on_done=on_done)
 
     def _mode_command(
-        self, name: str, mode: str, on_done: Callable[[Command], None] | None
-    ) -> Command:
+        self, name: str, mode: str, on_done: Callable[[MavCommand], None] | None
+    ) -> MavCommand:
         step = self._mode_step(mode)
         if isinstance(step, str):
             return self._refused(name, step, on_done)
@@ -860,8 +864,8 @@ class AutopilotCore:
         alt: float,
         *,
         yaw_deg: float | None = None,
-        on_done: Callable[[Command], None] | None = None,
-    ) -> Command:
+        on_done: Callable[[MavCommand], None] | None = None,
+    ) -> MavCommand:
         """Fly (drive) to an absolute point: SET_POSITION_TARGET_GLOBAL_INT, sent at once.
 
         `alt` is metres above home (relative-altitude frame); ground robots send 0. MAVLink
@@ -900,7 +904,7 @@ class AutopilotCore:
             0.0,
         )
         self.last_target = (lat, lon, alt)
-        cmd = Command(self._next_id, name, (), self._clock(), on_done)
+        cmd = MavCommand(self._next_id, name, (), self._clock(), on_done)
         self._next_id += 1
         # Setpoints stream at the loop rate: finish quietly, no event per setpoint.
         cmd.status = CommandStatus.DONE
@@ -911,8 +915,8 @@ class AutopilotCore:
         return cmd
 
     def request_streams(
-        self, rate_hz: float, *, on_done: Callable[[Command], None] | None = None
-    ) -> Command:
+        self, rate_hz: float, *, on_done: Callable[[MavCommand], None] | None = None
+    ) -> MavCommand:
         """Ask for the telemetry at `rate_hz`: REQUEST_DATA_STREAM (all streams, ArduPilot)
         then SET_MESSAGE_INTERVAL for each message used (ArduPilot and PX4; a refusal of
         one of these is only a warning on the command)."""

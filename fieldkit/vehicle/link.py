@@ -4,7 +4,7 @@
     ap.wait_heartbeat(10.0)                                 # start-up only: bounded waits
     ap.request_streams(10.0)
     ap.wait_gps_fix(ap.gps_fix_timeout_s)
-    takeoff = ap.takeoff(5.0)                               # returns at once: a Command
+    takeoff = ap.takeoff(5.0)                               # returns at once: a MavCommand
     while running:                                          # the node's 10 Hz loop
         ap.poll()                                           # read, ACKs, retries, heartbeat
         t = ap.telemetry                                    # lat, lon, alt_rel_m, armed, mode...
@@ -38,8 +38,8 @@ from fieldkit.vehicle.autopilot import (
     GCS_SYSTEM,
     AutopilotCore,
     AutopilotError,
-    Command,
-    Telemetry,
+    AutopilotState,
+    MavCommand,
     describe_error,
 )
 from fieldkit.vehicle.mavlink import adopt_codec
@@ -200,7 +200,7 @@ class Autopilot(AutopilotCore):
         *,
         idle: Callable[[], None] | None = None,
         poll_interval: float = 0.05,
-    ) -> Telemetry:
+    ) -> AutopilotState:
         """Poll until a vehicle heartbeat arrives; AutopilotError after `timeout` seconds.
 
         For start-up, not for the loop. `idle` is called between polls (a test steps its
@@ -223,7 +223,7 @@ class Autopilot(AutopilotCore):
         min_fix: int = 3,
         idle: Callable[[], None] | None = None,
         poll_interval: float = 0.05,
-    ) -> Telemetry:
+    ) -> AutopilotState:
         """Poll until the GPS fix type reaches `min_fix` (3: 3D); AutopilotError on timeout."""
         ok = self._wait(
             lambda: self.telemetry.gps_fix_type >= min_fix, timeout, idle, poll_interval
@@ -239,12 +239,12 @@ class Autopilot(AutopilotCore):
 
     def wait_command(
         self,
-        command: Command,
+        command: MavCommand,
         timeout: float,
         *,
         idle: Callable[[], None] | None = None,
         poll_interval: float = 0.05,
-    ) -> Command:
+    ) -> MavCommand:
         """Poll until `command` is over; AutopilotError if it failed or is still pending."""
         ok = self._wait(lambda: command.done, timeout, idle, poll_interval)
         if not ok:
