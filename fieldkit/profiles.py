@@ -2,7 +2,7 @@
 
 The simulator reads a profile's kinematics and battery; the field node will read the rest
 (autopilot link, radio, failsafes, geofence, robot id). Shipped profiles live in the
-repository's `device_profiles/` directory:
+repository's `device_profiles/` directory, installed as package data (fieldkit/resources.py):
 
     load_profile("solo")                      # device_profiles/solo.toml
     load_profile("site/my_husky.toml")        # any explicit path
@@ -24,8 +24,10 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Literal
 
-PROFILE_DIR = Path(__file__).resolve().parent.parent / "device_profiles"
-"""Where bare profile names are looked up: the repository's `device_profiles/`."""
+from fieldkit import resources
+
+PROFILE_DIR = resources.profile_dir()
+"""Where bare profile names are looked up: the shipped profiles (`device_profiles/`)."""
 
 VehicleKind = Literal["uav", "ground"]
 """`vehicle`: a UAV flies; a ground robot stays at z = 0."""
