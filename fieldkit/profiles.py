@@ -53,7 +53,7 @@ RADIO_KINDS: tuple[str, ...] = ("xbee", "udp")
 ID_SOURCES: tuple[str, ...] = ("config", "hostname", "xbee")
 """Allowed values of `robot_id.source`."""
 MAX_ROBOT_ID = 255
-"""Largest robot id: ROSBuzz, XbeeMav and MAVLink sysid all hold it in 8 bits (spec wire §0)."""
+"""Largest robot id: ROSBuzz, XbeeMav and MAVLink sysid hold 8 bits (docs/bundle.md#robot-ids)."""
 
 # Mode names per flavour, as pymavlink's mode mappings spell them (DJI: the names our DJI
 # adapter maps onto Onboard SDK control authority and flight tasks). Ground robots run an
@@ -153,7 +153,7 @@ class Radio:
     baud: int
     api_mode: int  # XBee API mode 1, or 2 (escaped)
     udp_port: int
-    per_step_budget_bytes: int  # Buzz bytes sent per step, as ROSBuzz (spec rosbuzz §4)
+    per_step_budget_bytes: int  # Buzz bytes per step, as ROSBuzz (docs/rosbuzz.md#radio-budget)
     # XBee 64-bit serial (16 upper-case hex digits) -> robot id, like XbeeMav's database.xml.
     id_map: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}), hash=False)
 
@@ -663,7 +663,7 @@ def _radio(c: _Checker, t: dict[str, Any] | None) -> Radio | None:
     if kind == "xbee" and port is not None and not port.strip():
         c.fail("radio.port", 'required when kind is "xbee" (the XBee serial device)')
         port = None
-    # 230400 is what the XBees are configured for in the field (spec rosbuzz §4).
+    # 230400 is what the XBees are configured for in the field (docs/rosbuzz.md#radio-budget).
     baud = c.get(t, "radio.baud", _whole(1, 10_000_000), 230400)
     api_mode = c.get(t, "radio.api_mode", _whole(1, 2), 2)
     udp_port = c.get(t, "radio.udp_port", _PORT, 24580)
