@@ -47,12 +47,10 @@ def example_dir() -> Path:
 
 
 def find_script(path: str | Path) -> Path:
-    """A script argument as a file: the path itself if it exists, else the bundled script.
-
-    A relative path that names no file (from the current directory) is looked up among the
-    shipped scripts, so `task_allocation.bzz` or `examples/hello.bzz` work from anywhere;
-    otherwise the path is returned unchanged and opening it reports the missing file.
-    """
+    """A script argument as a file: the path if it exists, else the shipped script of that name."""
+    # A relative path that names no file from the working directory is looked up among the
+    # shipped scripts, so `task_allocation.bzz` or `examples/hello.bzz` work from anywhere;
+    # otherwise the path comes back unchanged and opening it reports the missing file.
     given = Path(path)
     if given.exists() or given.is_absolute():
         return given
