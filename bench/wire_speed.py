@@ -2,7 +2,8 @@
 
     python bench/wire_speed.py [--repeat N] [--messages M] [--seed S]
 
-The mix imitates what ROSBuzz scripts put on the air every step (spec wire §2, §8.6):
+The mix imitates what ROSBuzz scripts put on the air every step (docs/wire-format.md#message-types,
+docs/bundle.md#commands-on-the-radio):
 broadcasts of a command code, of one float and of small tables (velocities, graph
 formation state); stigmergy PUTs and QUERYs with string keys (status, barrier) and int
 keys (waypoints); swarm LIST/JOIN. Each direction runs over the whole mix, best of N.

@@ -1,6 +1,6 @@
 """Buzz assembler: .basm text -> (.bo, .bdb) bytes, byte-identical to the reference `bzzasm`.
 
-Reference rules (spec §6.1), line by line, after skipping leading whitespace:
+Reference rules (docs/bytecode.md#basm-text), line by line, after skipping leading whitespace:
 empty and `#` lines are ignored; `'text` appends a string (the line minus its
 last character) and a NUL; `!N` appends a u16; `@name[|dbg]` defines a label;
 anything else is `name[ arg][|dbg]`. `|line,col,file` debug info is attached to

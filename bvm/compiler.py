@@ -2,7 +2,7 @@
 
 The recursive descent keeps every emission at the same point relative to token
 fetches as the reference, because each .basm line is annotated with the
-lookahead token at the moment it is emitted (spec §5.2). Differences from the
+lookahead token at the moment it is emitted (docs/language.md#annotation-rule). Differences from the
 reference are the lead's deliberate fixes: lexer errors and a stray top-level
 `}` are errors, strings with a newline are errors, and a `return` that greedily
 swallowed the next line falls back to a bare `return` (see `compile_source`).
@@ -55,7 +55,7 @@ class _Sym:
     pos: int
 
 
-# What an identifier chain refers to once parsed (spec §5.4).
+# What an identifier chain refers to once parsed (docs/language.md#identifier-chains).
 _TABLE = "table"
 _CLOSURE = "closure"
 _Ref = _Sym | str
@@ -158,7 +158,7 @@ class _Compiler:
         self.chunks.append(chunk)
         return chunk
 
-    # -- symbols (spec §4) -------------------------------------------------------
+    # -- symbols (docs/language.md#scopes) -------------------------------------------------------
 
     def lookup(self, name: str) -> _Sym | None:
         for table in reversed(self.symstack):
@@ -180,7 +180,7 @@ class _Compiler:
         return sym
 
     def push_scope(self, fresh_with_self: bool) -> None:
-        """A function table (`self` at slot 0), or a block/lambda table per §4."""
+        """A function table (`self` in slot 0), or a block or lambda table (docs/language.md)."""
         if fresh_with_self:
             self.symstack.append({"self": _Sym(False, 0)})
         elif len(self.symstack) == 1:
@@ -267,7 +267,7 @@ class _Compiler:
             self.statement()
 
     def idlist(self) -> None:
-        """Parameters; one that already names a local silently aliases it (§4)."""
+        """Parameters; one that already names a local aliases it (docs/language.md#scopes)."""
         if self.tok.kind is not Tok.ID:
             return
         while True:
@@ -686,7 +686,7 @@ class _Compiler:
         return count
 
     def idref(self, lvalue: bool) -> _Ref:
-        """An identifier chain `a.b[c](d)...` (spec §5.4)."""
+        """An identifier chain `a.b[c](d)...` (docs/language.md#identifier-chains)."""
         code = self.chunk.code
         start = len(code)  # end of O: the self slot of a chained call goes here
         self.expect(Tok.ID)

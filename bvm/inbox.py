@@ -1,4 +1,4 @@
-"""The incoming message queue of one robot (spec buzz-wire-formats.md §4).
+"""The incoming message queue of one robot (docs/wire-format.md#incoming-queue).
 
 The reference keeps received payloads in a 20-bucket map keyed by sender id and drains it
 sender by sender: buckets in order (`id % 20`), senders of one bucket in the order they

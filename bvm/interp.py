@@ -5,8 +5,8 @@ hand-made or hostile bytecode whose control flow has no structured shape, and ca
 with an unexpected number of arguments. It is also the oracle the translator is fuzzed
 against. It is small and slow on purpose; speed lives in the translator.
 
-Errors are attributed to `oldpc` following the reference's rules (§7.4): the locator in
-bvm/vm.py reads the `oldpc` local of the innermost interpreter frame.
+Errors are attributed to `oldpc` following the reference's rules (docs/bytecode.md#step-loop):
+the locator in bvm/vm.py reads the `oldpc` local of the innermost interpreter frame.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """One robot's messaging: received payloads in, decoded and dispatched; queued messages out.
 
-The host drives it once per step, in the reference's order (wire spec §10.6):
+The host drives it once per step, in the reference's order (docs/wire-format.md#step-order):
 
     vm.receive(sender, payload)   # as payloads arrive
     vm.process_inbox()            # apply them: listeners, stigmergy, swarm memberships

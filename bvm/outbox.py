@@ -1,4 +1,4 @@
-"""The outgoing message queue of one robot (spec buzz-wire-formats.md §3).
+"""The outgoing message queue of one robot (docs/wire-format.md#outgoing-queue).
 
 Six FIFO queues, drained in strict priority order: BROADCAST, SWARM_LIST, VSTIG_PUT,
 VSTIG_QUERY, SWARM_JOIN, SWARM_LEAVE. Messages are serialized when queued, so what goes out

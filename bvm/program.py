@@ -17,8 +17,9 @@ from bvm.opcodes import FIRST_ARG_OPCODE, NUM_OPCODES, Op
 #: Largest .bo or .bdb accepted (a real script is a few KiB).
 MAX_FILE_BYTES = 16 * 1024 * 1024
 
-# Names the reference registers after the bytecode strings (§8.1), in order. A `pushs`
-# with an id past the bytecode's own strings resolves into this list, as it does there.
+# Names the reference registers after the bytecode strings, in order
+# (docs/stdlib.md#registration-order). A `pushs` with an id past the bytecode's own strings
+# resolves into this list, as it does there.
 BUILTIN_STRINGS: tuple[str, ...] = (
     tuple(
         "get filter kin nonkin foreach map reduce count broadcast listen ignore neighbors id "

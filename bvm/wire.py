@@ -1,4 +1,6 @@
-"""The Buzz message wire format (spec wire §1, §2): what robots put on the air.
+"""The Buzz message wire format: what robots put on the air.
+
+Facts: docs/wire-format.md#objects, #message-types.
 
 A Buzz message is one payload whose length the transport supplies (there is no length
 field, sender id or checksum inside). All integers are big-endian.

@@ -1,7 +1,7 @@
 """The ROSBuzz bundle: how one robot's Buzz messages of one step travel, byte for byte.
 
-Three layers, all byte-compatible with unmodified ROSBuzz + XbeeMav robots (spec wire §0,
-§8.2-§8.4, §9.3, §11):
+Three layers, all byte-compatible with unmodified ROSBuzz + XbeeMav robots (docs/bundle.md#layers,
+docs/bundle.md#bundle, #mavlink-message, #receive-path, #xbeemav-packet, #worked-example):
 
 * L1, the bundle (`pack_bundle` / `unpack_bundle`): ``[u16 nwords][u16 robot]`` then
   ``[u16 len | len bytes]`` per Buzz message, zero padded to a multiple of 8 bytes; every
@@ -70,7 +70,8 @@ MAX_PAYLOAD_WORDS = HEADER_WORDS + MAX_BUNDLE_WORDS
 #: Bytes on the air (`encode`) at least (an empty step: a position heartbeat) and at most.
 MIN_AIR_BYTES = 8 * MIN_PAYLOAD_WORDS
 MAX_AIR_BYTES = 8 * MAX_PAYLOAD_WORDS
-#: XbeeMav's standard-message prefix ('S', sysid, msgid) before the words (spec wire §9.3).
+#: XbeeMav's standard-message prefix ('S', sysid, msgid) before the words
+#: (docs/bundle.md#xbeemav-packet).
 RF_PREFIX = 3
 #: The largest RF data of a standard (unfragmented) XBee frame.
 XBEE_MAX_RF = 250

@@ -3,7 +3,8 @@
 Two frames appear in fieldkit, always named explicitly:
 
 - **NED offsets** `(north_m, east_m)`: what ROSBuzz computes for neighbours and goals
-  (spec rosbuzz §2.4, wire §6.1). Flat earth on a sphere of radius `EARTH_RADIUS_M`:
+  (docs/rosbuzz.md#neighbor-table, docs/wire-format.md#neighbor-feed). Flat earth on a sphere of
+  radius `EARTH_RADIUS_M`:
   north = rad(lat − lat0)·R, east = rad(lon − lon0)·R·cos(rad(lat)). Note that the cosine
   is taken at the *target* latitude, not the origin's: we keep that so that our neighbour
   ranges match a ROSBuzz robot's on the same radio, and `offset_gps` inverts it exactly.

@@ -2,7 +2,7 @@
 
 The simulator reads a profile's kinematics and battery; the field node will read the rest
 (autopilot link, radio, failsafes, geofence, robot id). Shipped profiles live in the
-repository's `device_profiles/` directory:
+repository's `device_profiles/` directory, installed as package data (fieldkit/resources.py):
 
     load_profile("solo")                      # device_profiles/solo.toml
     load_profile("site/my_husky.toml")        # any explicit path
@@ -24,8 +24,10 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Literal
 
-PROFILE_DIR = Path(__file__).resolve().parent.parent / "device_profiles"
-"""Where bare profile names are looked up: the repository's `device_profiles/`."""
+from fieldkit import resources
+
+PROFILE_DIR = resources.profile_dir()
+"""Where bare profile names are looked up: the shipped profiles (`device_profiles/`)."""
 
 VehicleKind = Literal["uav", "ground"]
 """`vehicle`: a UAV flies; a ground robot stays at z = 0."""
@@ -51,7 +53,7 @@ RADIO_KINDS: tuple[str, ...] = ("xbee", "udp")
 ID_SOURCES: tuple[str, ...] = ("config", "hostname", "xbee")
 """Allowed values of `robot_id.source`."""
 MAX_ROBOT_ID = 255
-"""Largest robot id: ROSBuzz, XbeeMav and MAVLink sysid all hold it in 8 bits (spec wire §0)."""
+"""Largest robot id: ROSBuzz, XbeeMav and MAVLink sysid hold 8 bits (docs/bundle.md#robot-ids)."""
 
 # Mode names per flavour, as pymavlink's mode mappings spell them (DJI: the names our DJI
 # adapter maps onto Onboard SDK control authority and flight tasks). Ground robots run an
@@ -151,7 +153,7 @@ class Radio:
     baud: int
     api_mode: int  # XBee API mode 1, or 2 (escaped)
     udp_port: int
-    per_step_budget_bytes: int  # Buzz bytes sent per step, as ROSBuzz (spec rosbuzz §4)
+    per_step_budget_bytes: int  # Buzz bytes per step, as ROSBuzz (docs/rosbuzz.md#radio-budget)
     # XBee 64-bit serial (16 upper-case hex digits) -> robot id, like XbeeMav's database.xml.
     id_map: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}), hash=False)
 
@@ -661,7 +663,7 @@ def _radio(c: _Checker, t: dict[str, Any] | None) -> Radio | None:
     if kind == "xbee" and port is not None and not port.strip():
         c.fail("radio.port", 'required when kind is "xbee" (the XBee serial device)')
         port = None
-    # 230400 is what the XBees are configured for in the field (spec rosbuzz §4).
+    # 230400 is what the XBees are configured for in the field (docs/rosbuzz.md#radio-budget).
     baud = c.get(t, "radio.baud", _whole(1, 10_000_000), 230400)
     api_mode = c.get(t, "radio.api_mode", _whole(1, 2), 2)
     udp_port = c.get(t, "radio.udp_port", _PORT, 24580)

@@ -29,9 +29,10 @@ from pathlib import Path
 import bvm
 from bvm.errors import BuzzError
 from bvm.values import to_buzz
+from fieldkit import resources
 
 #: Where the shipped letter graphs live (P, O, L, Y).
-GRAPH_DIR = Path(__file__).resolve().parent.parent / "buzz_scripts" / "graphs"
+GRAPH_DIR = resources.graph_dir()
 
 #: Metres between the easternmost node of a letter and the westernmost node of the next.
 LETTER_GAP = 6.0

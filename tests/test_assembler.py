@@ -1,4 +1,4 @@
-"""Assembler: §6.1 parsing rules, §6.2 bytes, §6.4 .bdb layout, C number conversions."""
+"""Assembler: parsing rules, .bo bytes, .bdb layout, C number conversions (docs/bytecode.md)."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ def code_of(lines: str) -> bytes:
     return bo_of("!0\n" + lines)[2:]
 
 
-# -- §6.2 worked examples ------------------------------------------------------------
+# -- worked examples (docs/bytecode.md#bo-layout) -----------------------------------------
 
 
 def test_worked_example_bytes() -> None:
@@ -53,7 +53,7 @@ def test_empty_program_is_three_bytes() -> None:
     assert (bo, bdb) == (b"\x00\x00\x00", b"")
 
 
-# -- §6.1 line rules ------------------------------------------------------------------
+# -- line rules (docs/bytecode.md#basm-text) ---------------------------------------------
 
 
 def test_strings_keep_everything_but_the_last_character() -> None:
@@ -152,7 +152,7 @@ def test_jump_argument_is_always_a_label_in_reference_forms() -> None:
     assert code_of("@5\n\tjump @5\n") == bytes.fromhex("2c 02000000")
 
 
-# -- §6.4 debug info -----------------------------------------------------------------
+# -- debug info (docs/bytecode.md#bdb-layout) --------------------------------------------
 
 
 def test_bdb_record_layout() -> None:

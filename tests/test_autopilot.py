@@ -2,7 +2,7 @@
 
 Both ends speak pymavlink: `SimRig` puts a `SimVehicle` on the pty master and an `Autopilot`
 on the slave path, steps them in lockstep on a simulated clock and waits for the bytes (with
-a wall-clock deadline), never for time. Real ArduPilot logs from ../shared/data/tlogs are
+a wall-clock deadline), never for time. Real ArduPilot logs from tests/data/tlogs are
 replayed through a pty as well, corrupt frames included.
 
 The protocol itself (commands, flight, retries, faults) is tested without a pty, on the cores,
@@ -37,7 +37,7 @@ from fieldkit.vehicle import (
     open_pty,
 )
 
-TLOGS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tlogs"
+TLOGS = Path(__file__).resolve().parent / "data" / "tlogs"  # with their licences
 HOME = (45.5049, -73.6133)
 
 
@@ -249,7 +249,6 @@ def _tlog_frames(path: Path) -> list[bytes]:
     return frames
 
 
-@pytest.mark.skipif(not TLOGS.is_dir(), reason=f"real logs not present ({TLOGS})")
 @pytest.mark.parametrize(
     ("name", "first", "last", "changes"),
     [

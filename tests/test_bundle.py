@@ -1,4 +1,4 @@
-"""The ROSBuzz bundle and Mavlink container (fieldkit.bundle): spec bytes, limits, hostility.
+"""The ROSBuzz bundle and Mavlink container (fieldkit.bundle): documented bytes, limits, hostility.
 
 Long fuzz campaigns: `python -m tests.fuzz.bundle_fuzz --seconds 60 --seed S`.
 """
@@ -20,13 +20,15 @@ from fieldkit import bundle as B
 
 FAST = settings(deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 
-CMD_22 = bytes.fromhex("00 03 0003 636d64 01 00000016")  # broadcast "cmd" = 22 (spec wire §2)
+# broadcast "cmd" = 22 (docs/wire-format.md#message-types)
+CMD_22 = bytes.fromhex("00 03 0003 636d64 01 00000016")
 JOIN_3 = bytes.fromhex("04 0003")
-TIME = 0x1122334455667788  # the spec leaves the time word arbitrary
-EXAMPLE = replace(bundle_fuzz.EXAMPLE, time_ns=TIME)  # spec §11: CMD_22 and JOIN_3
+TIME = 0x1122334455667788  # the time word is any value (docs/bundle.md#mavlink-message)
+# docs/bundle.md#worked-example: CMD_22 and JOIN_3
+EXAMPLE = replace(bundle_fuzz.EXAMPLE, time_ns=TIME)
 
 
-# ---------------------------------------------------------------- spec §11, byte for byte
+# ------------------------------------------- docs/bundle.md#worked-example, byte for byte
 
 
 def test_worked_example_bundle_bytes() -> None:
@@ -56,7 +58,7 @@ def test_worked_example_rf_data_and_air_bytes() -> None:
     )
     assert B.to_rf_data(EXAMPLE) == rf
     assert B.encode(EXAMPLE) == rf[B.RF_PREFIX :]
-    # The spec's API frame length 0x51 = 14 frame bytes + the RF data.
+    # The documented API frame length 0x51 = 14 frame bytes + the RF data.
     assert 14 + len(rf) == 0x51
     assert B.decode(rf[3:]) == EXAMPLE
     assert B.from_rf_data(rf) == EXAMPLE
@@ -64,7 +66,7 @@ def test_worked_example_rf_data_and_air_bytes() -> None:
 
 
 def test_empty_step_is_a_one_word_heartbeat() -> None:
-    """Spec §8.2 [verified]: an empty step -> `01 00 07 00 00 00 00 00`."""
+    """docs/bundle.md#bundle [verified]: an empty step -> `01 00 07 00 00 00 00 00`."""
     assert B.pack_bundle(7, ()) == bytes.fromhex("01 00 07 00 00 00 00 00")
     b = B.Bundle(7, (), 1.0, 2.0, 3.0)
     assert len(B.encode(b)) == B.MIN_AIR_BYTES == 48
@@ -72,7 +74,7 @@ def test_empty_step_is_a_one_word_heartbeat() -> None:
 
 
 def test_air_bytes_are_each_bundle_word_reversed() -> None:
-    """Spec §0: on the radio every 8-byte group of the bundle appears byte-reversed."""
+    """On the air every 8-byte group of the bundle appears reversed (docs/bundle.md#byte-order)."""
     l1 = B.pack_bundle(7, (CMD_22, JOIN_3))
     air = B.encode(EXAMPLE)[8 * B.HEADER_WORDS :]
     for i in range(0, len(l1), 8):
@@ -80,7 +82,7 @@ def test_air_bytes_are_each_bundle_word_reversed() -> None:
 
 
 def test_junk_header_bytes_are_ignored() -> None:
-    """ROSBuzz fills bytes 4-7 of word 0 with garbage (spec §8.3): receivers ignore them."""
+    """ROSBuzz fills bytes 4-7 of word 0 with junk: receivers ignore them (docs/bundle.md)."""
     words = B.to_payload64(EXAMPLE)
     words[0] |= 0xDEADBEEF << 32
     assert B.from_payload64(words) == EXAMPLE
@@ -124,7 +126,7 @@ def test_empty_messages_cannot_be_packed() -> None:
 
 
 def obt_out_msg(queue: list[bytes]) -> list[bytes]:
-    """ROSBuzz's rule (spec §8.2): take while current_size + 2 + len <= 190, from 4."""
+    """ROSBuzz's rule (docs/bundle.md#bundle): take while current_size + 2 + len <= 190, from 4."""
     size = 4
     out = []
     for m in queue:

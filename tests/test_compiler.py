@@ -1,4 +1,7 @@
-"""Compiler: exact .basm text for the spec's constructs (§3-§5) and the deliberate fixes."""
+"""Compiler: exact .basm text for the language's constructs and the deliberate fixes.
+
+Facts: docs/language.md#grammar, #scopes, #code-generation; fixes: docs/compat.md.
+"""
 
 from __future__ import annotations
 
@@ -88,7 +91,7 @@ def test_function_prologue_and_chunk_order() -> None:
     assert chunks(text)[2] == ["ret0"]
 
 
-# -- annotations and control flow (§5.2, §5.3) --------------------------------------
+# -- annotations and control flow (docs/language.md#annotation-rule, #emission-order) -----
 
 
 def test_if_else_layout_and_annotations() -> None:
@@ -145,7 +148,7 @@ def test_call_statement_annotations() -> None:
     assert "\tpushi 1\t|2,0," in text and "\tcallc\t|2,0," in text
 
 
-# -- identifier chains (§5.4) ---------------------------------------------------------
+# -- identifier chains (docs/language.md#identifier-chains) -------------------------------
 
 
 @pytest.mark.parametrize(
@@ -253,7 +256,7 @@ def test_logic_has_no_short_circuit() -> None:
     ]  # fmt: skip
 
 
-# -- scopes and symbols (§4) ----------------------------------------------------------
+# -- scopes and symbols (docs/language.md#scopes) -----------------------------------------
 
 
 def test_var_global_and_local() -> None:
@@ -322,7 +325,7 @@ def test_docstring_is_discarded() -> None:
     assert text.startswith("!1\n'f\n")
 
 
-# -- string ids (§5.5) ----------------------------------------------------------------
+# -- string ids (docs/language.md#string-ids) ---------------------------------------------
 
 
 def test_string_id_order_and_sharing() -> None:

@@ -6,14 +6,16 @@ Corpus format (one script per behaviour, see the comment at the top of each scri
   runner call init()/step() N times/destroy() and set the robot id.
 * ``NAME.out`` -- the exact expected stdout (what the script logs).
 * ``NAME.err`` -- present when the script must fail (exit code 1). Line 1 is the expected
-  location ``LINE:COL`` (1-based line, 0-based column, spec §2.1/§5.2/§7.12), optionally
-  prefixed by the name of the file it must be in (``inc.bzz:LINE:COL``, for included code), or
+  location ``LINE:COL`` (1-based line, 0-based column: docs/language.md#source-positions,
+  #annotation-rule, docs/bytecode.md#errors), optionally prefixed by the name of the file it
+  must be in (``inc.bzz:LINE:COL``, for included code), or
   ``*`` when it is not pinned. Line 2 is the expected start of the message (the text after
   ``file:line:col: ``); an empty line 2 accepts any message, a line 2 starting with ``~`` is
   matched as a substring.
 
-The expected outputs were derived from /work/shared/spec/buzz-language-vm.md plus the lead's
-compat decisions (scripts named ``compat_*``), not by running the implementation.
+The expected outputs were derived from the reference's facts (docs/language.md,
+docs/bytecode.md, docs/stdlib.md) plus the lead's compat decisions (scripts named
+``compat_*``), not by running the implementation.
 Scripts run with a fresh temporary cwd (io files are relative; includes are cwd-relative, so
 ``tests/conformance/include/`` is copied there).
 """
@@ -147,7 +149,7 @@ def test_corpus_is_complete() -> None:
         assert orphan.with_suffix(".bzz").exists(), f"{orphan.name} has no script"
 
 
-# Every opcode of spec §6.3.
+# Every opcode of docs/bytecode.md#opcodes.
 ALL_OPCODES = [
     "nop", "done", "pushnil", "dup", "pop", "ret0", "ret1", "add", "sub", "mul", "div", "mod",
     "pow", "unm", "land", "lor", "lnot", "band", "bor", "bnot", "lshift", "rshift", "eq", "neq",
@@ -155,15 +157,16 @@ ALL_OPCODES = [
     "pushf", "pushi", "pushs", "pushcn", "pushcc", "pushl", "lload", "lstore", "lremove", "jump",
     "jumpz", "jumpnz",
 ]  # fmt: skip
-# Opcodes the compiler never emits (§5.3, §6.3): `calls` (the "swarm call", §6.3 says "never
-# emitted by the compiler"; swarm calls are made from inside the swarm natives) and `pushcc`
+# Opcodes the compiler never emits (docs/language.md#emission-order, docs/bytecode.md#opcodes):
+# `calls` (the "swarm call", which the compiler never emits; swarm calls are made from inside
+# the swarm natives) and `pushcc`
 # (natives are registered by the VM as global/table values, never referenced as constants,
 # so only hand-written assembly contains it). Every other opcode is reachable from source:
 # nop/pushcn come from the function-registration prologue, done ends the global code,
 # jumpnz comes from `for`, lremove from blocks that declare locals inside functions.
 NEVER_EMITTED = {"calls", "pushcc"}
 
-# Every function of spec §8.2-§8.5, as the dotted name a script calls.
+# Every function of docs/stdlib.md, as the dotted name a script calls.
 LIBRARY_FUNCTIONS = {
     "type", "int", "float", "clone", "size", "foreach", "map", "reduce", "filter",
     "isnil", "isint", "isfloat", "isstring", "istable", "isclosure", "isuserdata",
@@ -175,7 +178,7 @@ LIBRARY_FUNCTIONS = {
     "string.tofloat",
     "io.fopen", "io.fclose", "io.fsize", "io.fforeach", "io.fwrite",
 }  # fmt: skip
-# Library values (not functions) of §8.2-§8.5 that the corpus must read.
+# Library values (not functions) of docs/stdlib.md that the corpus must read.
 LIBRARY_VALUES = {"id", "math.pi", "io.errno", "io.error_message"}
 
 _STRIP_RE = re.compile(r"\"(?:\\.|[^\"\\\n])*\"|'(?:\\.|[^'\\\n])*'|#[^\n]*")
@@ -205,7 +208,7 @@ def test_corpus_covers_every_opcode(tmp_path: Path, monkeypatch: pytest.MonkeyPa
             if line.startswith("\t") and line.strip():
                 used.add(line[1:].split("\t")[0].split(" ")[0])
     unknown = used - set(ALL_OPCODES)
-    assert not unknown, f"compiler emitted opcodes not in §6.3: {sorted(unknown)}"
+    assert not unknown, f"compiler emitted opcodes not in docs/bytecode.md: {sorted(unknown)}"
     missing = set(ALL_OPCODES) - NEVER_EMITTED - used
     assert not missing, f"no conformance script emits: {sorted(missing)}"
 

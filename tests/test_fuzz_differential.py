@@ -1,6 +1,7 @@
 """Differential fuzzing: the translator (bvm/translate.py) against the reference interpreter.
 
-Hypothesis generates random valid Buzz programs (tests/fuzz/buzzgen.py, spec §3 grammar);
+Hypothesis generates random valid Buzz programs (tests/fuzz/buzzgen.py, the grammar of
+docs/language.md#grammar);
 each runs with translate=True and translate=False (same rng seed and budget). They must
 agree on the logged lines, on success or the error (message and bytecode offset), on the
 final globals, and on a second round of calls to every function the program defines, with

@@ -1,4 +1,7 @@
-"""Lexer: token kinds, reference positions, string bugs (fixed) and lexer errors (spec §2)."""
+"""Lexer: token kinds, reference positions, string bugs (fixed) and lexer errors.
+
+Facts: docs/language.md#lexer.
+"""
 
 from __future__ import annotations
 

@@ -29,7 +29,8 @@ def bcast(value: object, topic: str = "m") -> bytes:
 
 
 def test_senders_in_bucket_order_each_newest_first() -> None:
-    # spec wire §4: buckets id % 20, then arrival order; each sender's payloads LIFO.
+    # Buckets id % 20, then arrival order; each sender's payloads LIFO
+    # (docs/wire-format.md#incoming-queue).
     vm, _ = make_robot(LISTENER)
     for sender, value in [(21, 1), (3, 1), (1, 1), (21, 2), (41, 1), (3, 2)]:
         vm.receive(sender, bcast(value))

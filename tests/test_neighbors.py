@@ -144,7 +144,8 @@ def test_derived_tables_do_not_grow_the_function_list() -> None:
 
 
 def test_broadcast_bytes_match_the_reference() -> None:
-    # spec wire §2: robot 7's neighbors.broadcast("cmd", 22), and "f" = -0.1, and nil.
+    # Robot 7's neighbors.broadcast("cmd", 22), and "f" = -0.1, and nil
+    # (docs/wire-format.md#message-types).
     vm, _ = make_robot(
         'neighbors.broadcast("cmd", 22) neighbors.broadcast("f", -0.1) '
         'neighbors.broadcast("f", nil)',

@@ -20,7 +20,7 @@ from fieldkit.profiles import load_profile
 from fieldkit.vehicle.link import Autopilot
 from fieldkit.vehicle.pty import open_pty
 
-TLOGS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tlogs"
+TLOGS = Path(__file__).resolve().parent / "data" / "tlogs"  # with their licences
 FLIGHT = TLOGS / "quad-flight-arducopter.tlog"
 
 WATCH = """
@@ -70,7 +70,6 @@ class Expected:
                 self.armed = bool(m.base_mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
 
 
-@pytest.mark.skipif(not FLIGHT.is_file(), reason=f"real logs not present ({TLOGS})")
 def test_a_real_flight_shows_in_the_script_globals() -> None:
     frames = frames_of(FLIGHT)[30_000:46_000]  # arming, flying, landing; 240 bad frames
     pty = open_pty()

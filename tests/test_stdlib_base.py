@@ -1,4 +1,7 @@
-"""Base functions (spec §8.2): type, int, float, clone, size, foreach, map, reduce, filter, is*."""
+"""Base functions: type, int, float, clone, size, foreach, map, reduce, filter, is*.
+
+Facts: docs/stdlib.md#base-functions.
+"""
 
 from __future__ import annotations
 

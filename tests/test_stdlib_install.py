@@ -1,4 +1,4 @@
-"""stdlib registration (spec §8.1), plus the helpers the stdlib tests share.
+"""stdlib registration (docs/stdlib.md#registration-order), plus the helpers the stdlib tests share.
 
 The other tests/test_stdlib_*.py files import `make_vm`, `call` and `buzz_fn` from here.
 """

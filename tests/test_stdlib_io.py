@@ -1,4 +1,7 @@
-"""The `io` table (spec §8.5): fopen, fclose, fsize, fforeach, fwrite, errno, error_message."""
+"""The `io` table: fopen, fclose, fsize, fforeach, fwrite, errno, error_message.
+
+Facts: docs/stdlib.md#io.
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The `math` table (spec §8.3), except math.rng (tests/test_stdlib_rng.py)."""
+"""The `math` table (docs/stdlib.md#math), except math.rng (tests/test_stdlib_rng.py)."""
 
 from __future__ import annotations
 

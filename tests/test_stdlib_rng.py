@@ -1,4 +1,4 @@
-"""math.rng (spec §8.3): the quirky-seeded Mersenne Twister and the four draw functions."""
+"""math.rng (docs/stdlib.md#math): the quirkily seeded Mersenne Twister and four draw functions."""
 
 from __future__ import annotations
 
@@ -64,7 +64,7 @@ def _standard_init(seed: int) -> list[int]:
 
 
 def _model_init(seed: int) -> list[int]:
-    """The seeding recurrence of spec §8.3, written independently."""
+    """The seeding recurrence of docs/stdlib.md#math, written independently."""
     s = [seed & U32_MAX]
     for k in range(1, 624):
         x = i32(s[k - 1])
@@ -99,7 +99,7 @@ def test_the_model_is_textbook_mt19937() -> None:
 
 
 def test_standard_seeding_would_differ() -> None:
-    # Standard MT19937 (logical shift) seeded with 5 starts with 953453411 (spec §8.3).
+    # Standard MT19937 (logical shift) seeded with 5 starts with 953453411 (docs/stdlib.md#math).
     assert _model_outputs(_standard_init(5), 1) == [953453411]
     assert MersenneTwister(5).next_u32() != 953453411
 

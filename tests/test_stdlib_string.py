@@ -1,4 +1,4 @@
-"""The `string` table (spec §8.4): length, sub, concat, tostring, toint, tofloat."""
+"""The `string` table (docs/stdlib.md#string): length, sub, concat, tostring, toint, tofloat."""
 
 from __future__ import annotations
 
@@ -189,7 +189,7 @@ def test_tostring_tofloat_close(x: float) -> None:
         ("2147483647", 2147483647),
         ("2147483648", INT_MIN),
         ("-2147483649", 2147483647),
-        ("99999999999", 1215752191),  # spec §8.4
+        ("99999999999", 1215752191),  # docs/stdlib.md#string
         ("9223372036854775807", -1),
         ("9223372036854775808", -1),  # saturates at LONG_MAX
         ("99999999999999999999999", -1),
@@ -274,7 +274,7 @@ def test_toint_agrees_with_libc_strtol(s: str) -> None:
     "s,expected",
     [
         ("1.5", 1.5),
-        ("1e3", 1000.0),  # spec §8.4
+        ("1e3", 1000.0),  # docs/stdlib.md#string
         ("1E-2", f32(0.01)),
         ("  -2.5xyz", -2.5),
         ("+.5", 0.5),

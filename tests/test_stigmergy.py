@@ -22,7 +22,7 @@ def deliver(src: bvm.VM, dst: bvm.VM) -> int:
 
 
 def test_put_get_delete_bytes_match_the_reference() -> None:
-    # spec wire §2, robot 7 (and robot 2 for the delete).
+    # docs/wire-format.md#message-types, robot 7 (and robot 2 for the delete).
     vm, _ = make_robot(
         """
         v = stigmergy.create(5)
@@ -71,8 +71,8 @@ def test_local_api() -> None:
 
 
 def test_repeated_puts_queue_only_the_newest() -> None:
-    # spec wire §11: three steps each doing put("k") queue only the ts=3 PUT; repeated
-    # get("missing") queue one QUERY; broadcasts are all kept.
+    # Three steps each doing put("k") queue only the ts=3 PUT; repeated get("missing") queue one
+    # QUERY; broadcasts are all kept (docs/wire-format.md#outgoing-queue).
     vm, _ = make_robot(
         """
         v = stigmergy.create(5)
@@ -121,7 +121,8 @@ def test_put_for_an_uncreated_vstig_is_dropped() -> None:
 
 
 def test_default_conflict_rule_higher_robot_wins_and_loser_is_told() -> None:
-    # spec wire §5.3 [verified]: robots 2 and 9 both put "k" at ts 1 -> both converge to 9's.
+    # Robots 2 and 9 both put "k" at ts 1 -> both converge to 9's
+    # (docs/wire-format.md#receiving-put).
     src = """
     v = stigmergy.create(5)
     v.onconflictlost(function(k, local) { log("lost ", k, " ", local.data, " ", local.robot) })
@@ -224,7 +225,8 @@ def test_query_for_an_uncreated_vstig_is_forwarded_unchanged() -> None:
 
 
 def test_query_for_a_key_nobody_holds_does_not_bounce_forever() -> None:
-    # The reference ping-pongs such a query between robots forever (spec wire §5.4).
+    # The reference ping-pongs such a query between robots forever
+    # (docs/wire-format.md#gossip-consequences).
     a, b, _ = pair('v = stigmergy.create(5) v.get("missing")', "v = stigmergy.create(5)")
     sent = []
     for _ in range(50):
@@ -234,7 +236,7 @@ def test_query_for_a_key_nobody_holds_does_not_bounce_forever() -> None:
 
 
 def test_foreach_follows_the_reference_bucket_order() -> None:
-    # nil 0, int u32 % 10, float trunc, string djb2 over signed chars (spec language §8.8).
+    # nil 0, int u32 % 10, float trunc, string djb2 over signed chars (docs/stdlib.md#stigmergy).
     assert [bucket(k) for k in (None, 13, -1, 7.9, -1.5)] == [0, 3, 5, 7, 5]
     assert bucket("a") == (5381 * 33 + 97) % 10
     assert bucket("\xe9") == ((5381 * 33 - 23) & 0xFFFFFFFF) % 10

@@ -81,7 +81,8 @@ def test_unknown_swarm_id_is_an_error() -> None:
 
 
 def test_list_join_leave_bytes_and_merging() -> None:
-    # spec wire §2 and §3: JOIN 3 -> 04 0003; a queued LIST absorbs later JOIN/LEAVEs.
+    # JOIN 3 -> 04 0003; a queued LIST absorbs later JOIN/LEAVEs
+    # (docs/wire-format.md#message-types, #outgoing-queue).
     vm, _ = make_robot("s = swarm.create(3) s.join()", robot_id=7)
     assert hexes(vm.drain_outbox()) == ["040003"]
     vm, _ = make_robot("s = swarm.create(3) s.join() s.leave() s.join()")
@@ -105,9 +106,9 @@ def test_periodic_swarm_list_every_ten_steps() -> None:
 
 
 def test_reference_drain_order_for_a_mixed_queue() -> None:
-    # spec wire §11: robot 7 (vstig 5, swarm 3 joined, swarm 9 created only, puts, a get,
-    # 4 broadcasts), after 10 process_outmsgs: 4 BROADCASTs, the LIST (which replaced the
-    # queued JOIN), 4 PUTs, 1 QUERY.
+    # docs/wire-format.md#worked-example: robot 7 (vstig 5, swarm 3 joined, swarm 9 created
+    # only, puts, a get, 4 broadcasts), after 10 process_outmsgs: 4 BROADCASTs, the LIST (which
+    # replaced the queued JOIN), 4 PUTs, 1 QUERY.
     vm, _ = make_robot(
         """
         v = stigmergy.create(5)

@@ -112,9 +112,10 @@ def test_host_function_as_callback(translate: bool) -> None:
 @BOTH
 @pytest.mark.parametrize(
     ("src", "where", "message"),
-    # Each instruction carries the parser's lookahead token (spec §5.2), so an error is
-    # reported at the token after the failing operation; tput errors at the instruction
-    # before the tput, errors inside a host function at its call (§7.4, §7.12).
+    # Each instruction carries the parser's lookahead token (docs/language.md#annotation-rule),
+    # so an error is reported at the token after the failing operation; tput errors at the
+    # instruction before the tput, errors inside a host function at its call
+    # (docs/bytecode.md#step-loop, #errors).
     [
         ("x = 1\ny = x + nil\nz = 0", (3, 0), "type mismatch: cannot add integer and nil"),
         ("function f() {\n  return 1 / 0\n}\nf()\nz = 0", (3, 0), "division by zero"),

@@ -1,6 +1,8 @@
-"""The Buzz message wire format (bvm.wire) against spec wire §1, §2 and §11.
+"""The Buzz message wire format (bvm.wire) against docs/wire-format.md#objects, #message-types
+and docs/bundle.md#worked-example.
 
-Golden vectors are the bytes the reference C VM produced (spec §2 and §11, robot 7);
+Golden vectors are the bytes the reference C VM produced (robot 7:
+docs/wire-format.md#message-types, docs/bundle.md#worked-example);
 the float codec is checked against an independent numpy float32 transcription of the C
 code; hypothesis checks round trips; hostile input must only ever raise DecodeError.
 """
@@ -37,7 +39,7 @@ from bvm.wire import (
 
 
 def h(text: str) -> bytes:
-    """Bytes from spaced hex as the spec writes them."""
+    """Bytes from spaced hex as the docs write them."""
     return bytes.fromhex(text)
 
 
@@ -58,7 +60,7 @@ def value_of(data: bytes) -> object:
 
 
 def c_encode_float(x: float) -> tuple[int, int]:
-    """Spec §1's C encoder, transcribed with numpy float32 arithmetic (not the recipe)."""
+    """The C encoder (docs/wire-format.md#objects) in numpy float32 arithmetic (not the recipe)."""
     v = np.float32(x)
     if v == 0:
         return 0, 0
@@ -70,7 +72,7 @@ def c_encode_float(x: float) -> tuple[int, int]:
 
 
 def c_decode_float(mant: int, exp: int) -> float:
-    """Spec §1's C decoder in numpy float32 arithmetic (ldexpf overflows to inf)."""
+    """The C decoder (docs/wire-format.md#objects) in numpy float32 (ldexpf overflows to inf)."""
     if mant == 0:
         return 0.0
     with np.errstate(all="ignore"):
@@ -172,7 +174,7 @@ def test_golden_value(value: object, hexbytes: str) -> None:
 
 
 def test_bundle_example_messages() -> None:
-    """§11 worked example: the bundle carries BROADCAST "cmd"=22 (12 bytes) and JOIN 3."""
+    """The worked example's bundle holds BROADCAST "cmd"=22 (12 bytes), JOIN 3 (docs/bundle.md)."""
     bundle = h("03 00 07 00 0c 00 00 03 00 03 63 6d 64 01 00 00 00 16 03 00 04 00 03 00")
     first = bundle[6 : 6 + 12]
     second = bundle[6 + 12 + 2 : 6 + 12 + 2 + 3]
@@ -232,7 +234,8 @@ def test_many_float32_bit_patterns_round_trip_bit_exactly() -> None:
     pats[:1000] &= np.uint32(0x807FFFFF)  # force some subnormals (and zeros)
     xs = pats.view(np.float32)
     xs = xs[np.isfinite(xs)]
-    # The C encoder, vectorized in float32 (spec §1): mant = (|f| - 0.5) * 2.0f * 2147483646.0f
+    # The C encoder, vectorized in float32 (docs/wire-format.md#objects):
+    # mant = (|f| - 0.5) * 2.0f * 2147483646.0f
     f, e = np.frexp(xs)
     with np.errstate(all="ignore"):
         m = ((np.abs(f) - np.float32(0.5)) * np.float32(2.0) * np.float32(2147483646.0)).astype(

@@ -1,4 +1,4 @@
-"""XBee API frames: spec golden bytes, digi-xbee agreement, the streaming de-framer."""
+"""XBee API frames: documented golden bytes, digi-xbee agreement, the streaming de-framer."""
 
 from __future__ import annotations
 
@@ -23,28 +23,30 @@ from hypothesis import strategies as st
 from fieldkit import bundle as B
 from fieldkit.radio import xbee as X
 
-#: The spec's worked example (wire §11): robot 7, number 1, BROADCAST "cmd"=22 + JOIN 3.
+#: The worked example (docs/bundle.md#worked-example): robot 7, number 1, BROADCAST "cmd"=22 +
+#: JOIN 3.
 TIME_NS = 0x1122334455667788
 EXAMPLE = replace(bundle_fuzz.EXAMPLE, time_ns=TIME_NS)
-#: §11's XBee RF data, with the 8 time bytes filled in.
+#: docs/bundle.md#worked-example's XBee RF data, with the 8 time bytes filled in.
 SPEC_RF = bytes.fromhex(
     "53 07 01 | 00 00 00 00 00 01 00 02 | 11 22 33 44 55 66 77 88 | 40 46 c0 00 00 00 00 00 |"
     " c0 52 66 66 66 66 66 66 | 40 24 00 00 00 00 00 00 | 03 00 00 0c 00 07 00 03 |"
     " 00 00 01 64 6d 63 03 00 | 00 03 00 04 00 03 16 00".replace("|", "")
 )
-#: §11's API frame head: start, length 0x51, 0x10, frame id 1, broadcast, FF FF, radius, options.
+#: The worked example's API frame head: start, length 0x51, 0x10, frame id 1, broadcast, FF FF,
+#: radius, options.
 SPEC_HEAD = bytes.fromhex("7e 00 51 10 01 00 00 00 00 00 00 ff ff ff ff 00 00")
 SERIAL = 0x0013A20040A1B2C3
 
 
 def spec_frame() -> bytes:
-    """§11's API frame: the head, the RF data, and the checksum worked out by hand."""
+    """The worked example's API frame: the head, the RF data, and the checksum computed by hand."""
     frame_data = SPEC_HEAD[3:] + SPEC_RF
     return SPEC_HEAD + SPEC_RF + bytes(((0xFF - sum(frame_data)) & 0xFF,))
 
 
 def digi_unescape(raw: bytes, api_mode: int) -> bytearray:
-    """digi-xbee's parse input: unescaped bytes (ecosystem §4), as the bytearray it expects."""
+    """digi-xbee's parse input: unescaped bytes (docs/third-party.md#digi-xbee), as a bytearray."""
     return bytearray(XBeePacket.unescape_data(raw) if api_mode == 2 else raw)
 
 
@@ -57,7 +59,7 @@ def digi_mode(api_mode: int) -> OperatingMode:
 
 
 def test_spec_rf_data_and_frame_byte_for_byte() -> None:
-    """The bundle's RF data and our 0x10 frame are §11's bytes exactly (length 0x51 = 81)."""
+    """The bundle's RF data and our 0x10 frame are the worked example's bytes (length 0x51 = 81)."""
     assert B.to_rf_data(EXAMPLE) == SPEC_RF
     frame = X.transmit_request(SPEC_RF)
     assert frame == spec_frame()
@@ -66,7 +68,7 @@ def test_spec_rf_data_and_frame_byte_for_byte() -> None:
 
 
 def test_spec_frame_in_api_mode_2() -> None:
-    """Escaped, the §11 frame differs only where special bytes are; it de-frames to the same."""
+    """Escaped, the worked example's frame differs only at special bytes; it de-frames the same."""
     esc = X.transmit_request(SPEC_RF, api_mode=2)
     plain = spec_frame()
     # 0x11 (in the time bytes) is the only special byte after the start delimiter

@@ -1,4 +1,4 @@
-"""XbeeMav packets and fragmentation (spec wire §9.3-§9.6), and XBeeRadio over real ptys.
+"""XbeeMav packets and fragmentation (docs/bundle.md#xbeemav), and XBeeRadio over real ptys.
 
 The protocol across several robots (lost fragments, corruption, strangers) is tested without
 a port in tests/test_xbee_core.py; the pty tests here check the serial transport.
@@ -64,7 +64,7 @@ def big_payload(words: int, seed: int = 0) -> bytes:
 
 
 def test_standard_packet_is_the_bundle_rf_data() -> None:
-    """A bundle travels as 'S' + sysid + msgid + words: bundle.to_rf_data, spec §11."""
+    """A bundle travels as 'S' + sysid + msgid + words: bundle.to_rf_data (docs/bundle.md)."""
     engine = M.XbeeMav(7, clock=FakeClock())
     engine.submit(B.encode(EXAMPLE), M.msgid_of(B.encode(EXAMPLE)) or 0)
     assert engine.pump() == [B.to_rf_data(EXAMPLE)]
@@ -573,7 +573,7 @@ def test_two_radios_exchange_bundles(mesh: Callable[[int], Mesh], api_mode: int)
 
 
 def test_radio_writes_the_spec_frame(mesh: Callable[[int], Mesh]) -> None:
-    """Robot 7 sending the §11 bundle writes the §11 API frame byte for byte."""
+    """Robot 7 sending the worked example's bundle writes its API frame exactly (docs/bundle.md)."""
     net = mesh(1)
     clock = FakeClock()
     (r7,) = radios_on(net, [7], clock)

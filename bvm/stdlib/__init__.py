@@ -1,6 +1,7 @@
-"""The Buzz standard library (spec §8): `install(vm)` registers it into a VM's globals.
+"""The Buzz standard library (docs/stdlib.md): `install(vm)` registers it into a VM's globals.
 
-Registration follows the reference order of spec §8.1 exactly, because C-function ids are
+Registration follows the reference order (docs/stdlib.md#registration-order) exactly, because
+C-function ids are
 handed out in registration order and show up when a closure is printed (`[c-closure @N]`):
 
     neighbors 0-10 | id | type int float clone size foreach map reduce filter 11-19,
@@ -25,7 +26,7 @@ __all__ = ["install"]
 
 
 def install(vm: Any) -> None:
-    """Register the standard library into `vm.globals`, in the reference order (spec §8.1)."""
+    """Register the standard library into `vm.globals`, in the reference order (see above)."""
     vm.neighbors.register()  # get filter kin nonkin foreach map reduce count
     # broadcast listen ignore, ids 0-10
     vm.globals["id"] = vm.robot_id

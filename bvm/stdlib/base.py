@@ -1,4 +1,5 @@
-"""Base functions (spec §8.2): type, int, float, clone, size, foreach, map, reduce, filter, is*.
+"""Base functions (docs/stdlib.md#base-functions): type, int, float, clone, size, foreach, map,
+reduce, filter, is*.
 
 Deliberate differences from the reference (see docs/compat.md):
 

@@ -1,4 +1,4 @@
-"""The `io` table (spec §8.5): fopen, fclose, fsize, fforeach, fwrite, errno, error_message.
+"""The `io` table (docs/stdlib.md#io): fopen, fclose, fsize, fforeach, fwrite, errno, error_message.
 
 Files are opened relative to the process's current directory, in binary; Buzz strings map
 to bytes one to one (latin-1). Every io call sets `io.errno` and `io.error_message` (the

@@ -1,5 +1,5 @@
-"""The `math` table (spec §8.3): abs floor ceil round log log2 log10 exp sqrt sin cos tan asin
-acos atan min max pi, and `math.rng` (setseed uniform gaussian exponential).
+"""The `math` table (docs/stdlib.md#math): abs floor ceil round log log2 log10 exp sqrt sin cos
+tan asin acos atan min max pi, and `math.rng` (setseed uniform gaussian exponential).
 
 Float results are binary32: the double-precision result of the float32 argument, rounded
 once to binary32. C single-precision edge cases come out as C gives them, never as a Python
@@ -226,7 +226,7 @@ def m_max(_self: Any, a: Any, b: Any) -> Any:
 
 
 def uniform_from(u: int, args: tuple[Any, ...]) -> Any:
-    """`math.rng.uniform(*args)` for the raw 32-bit draw u (spec §8.3 formulas).
+    """`math.rng.uniform(*args)` for the raw 32-bit draw u (docs/stdlib.md#math formulas).
 
     () -> u as int32; (n int) -> int32(floor(u * u64(n) / 4294967295)) in 64-bit unsigned
     arithmetic; (x float) -> float32(u) * x / 4294967295 in float32; (a, b) ints ->
@@ -271,7 +271,7 @@ def _minus_one_to_one(u: int) -> float:
 
 
 def gaussian_from(next_u32: Any, mean: float, sd: float) -> float:
-    """mean + sd * n with n ~ N(0, 1) by the polar Box-Muller method (spec §8.3).
+    """mean + sd * n with n ~ N(0, 1) by the polar Box-Muller method (docs/stdlib.md#math).
 
     Draw x1, x2 in [-1, 1] (float32) until s = x1*x1 + x2*x2 (float32) is in (0, 1);
     n = x1 * sqrt(-2 ln s / s) in double; the result is rounded to binary32. The second

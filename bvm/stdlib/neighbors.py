@@ -1,4 +1,6 @@
-"""The `neighbors` table (spec language §8.6, wire §6): situated communication.
+"""The `neighbors` table: situated communication.
+
+Facts: docs/stdlib.md#neighbors, docs/wire-format.md#neighbors.
 
 The host replaces `neighbors.poses` every step with the robots it currently hears, as
 robot id -> {distance, azimuth, elevation}. Methods (self = the table they are called on):
@@ -163,7 +165,7 @@ class Neighbors:
         ]
 
     def register(self) -> None:
-        """Create the global `neighbors` table (C-function ids 0-10, spec §8.1)."""
+        """Create the global `neighbors` table (C-function ids 0-10, docs/stdlib.md)."""
         vm = self.vm
 
         def n_broadcast(_t: Any, topic: Any, value: Any) -> None:

@@ -1,7 +1,7 @@
 """The Mersenne Twister behind `math.rng`, seeded with the reference's signed-shift quirk.
 
 Generation and tempering are standard MT19937. Seeding is not: the reference keeps the
-state as int32 and its init recurrence shifts right arithmetically (spec §8.3):
+state as int32 and its init recurrence shifts right arithmetically (docs/stdlib.md#math):
 
     s[0] = seed
     s[k] = u32(1812433253 * u32(x ^ (x >> 30)) + k)    with x = s[k-1] as int32

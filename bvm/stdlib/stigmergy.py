@@ -1,4 +1,6 @@
-"""Virtual stigmergy (spec language §8.8, wire §5): a gossiped key-value store per id.
+"""Virtual stigmergy: a gossiped key-value store per id.
+
+Facts: docs/stdlib.md#stigmergy, docs/wire-format.md#stigmergy.
 
 Each entry holds (data, timestamp, robot): the timestamp is a per-key u16 version counter
 and `robot` the robot that wrote the value. A local `put` bumps the version and gossips a
@@ -122,8 +124,8 @@ class Stigmergies:
     # ------------------------------------------------------------ receiving
 
     def on_put(self, msg: wire.VstigPut, shared: bool = False) -> None:
-        """A received PUT (spec wire §5.2). `shared`: its tables are other robots' too, so
-        a value kept here is copied first."""
+        """A received PUT (docs/wire-format.md#receiving-put). `shared`: its tables are other
+        robots' too, so a value kept here is copied first."""
         vs = self.stores.get(msg.vstig)
         if vs is None:
             return  # not created here: dropped, not propagated (as the reference)
@@ -137,7 +139,7 @@ class Stigmergies:
             self._conflict(vs, msg.key, local, _element(msg, shared))
 
     def on_query(self, msg: wire.VstigQuery, payload: bytes, shared: bool = False) -> None:
-        """A received QUERY (spec wire §5.3); `shared` as for on_put."""
+        """A received QUERY (docs/wire-format.md#receiving-query); `shared` as for on_put."""
         vs = self.stores.get(msg.vstig)
         local = vs.entries.get(msg.key) if vs is not None else None
         if vs is None or (local is None and msg.value is None):
@@ -281,7 +283,7 @@ class Stigmergies:
         ]
 
     def register(self) -> None:
-        """Register the global `stigmergy` table (C-function id 27, spec §8.1)."""
+        """Register the global `stigmergy` table (C-function id 27, docs/stdlib.md)."""
 
         def create(_t: Any, x: Any) -> Table:
             if x.__class__ is not int:

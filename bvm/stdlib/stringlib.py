@@ -1,4 +1,4 @@
-"""The `string` table (spec §8.4): length, sub, concat, tostring, toint, tofloat.
+"""The `string` table (docs/stdlib.md#string): length, sub, concat, tostring, toint, tofloat.
 
 Deliberate differences from the reference (see docs/compat.md):
 

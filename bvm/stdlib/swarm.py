@@ -1,4 +1,4 @@
-"""The `swarm` table (spec language §8.7, wire §7): dynamic sub-swarms.
+"""The `swarm` table (docs/stdlib.md#swarm, docs/wire-format.md#swarms): dynamic sub-swarms.
 
 Local state: swarm id (u16) -> membership flag (u8). Remote knowledge, learned from
 SWARM_LIST/JOIN/LEAVE messages: robot id -> (its swarm ids, age in steps); a record not
@@ -191,7 +191,7 @@ class Swarms:
         ]
 
     def register(self) -> None:
-        """Register the global `swarm` table (C-function ids 28-32, spec §8.1)."""
+        """Register the global `swarm` table (C-function ids 28-32, docs/stdlib.md)."""
         vm = self.vm
 
         def create(_t: Any, x: Any) -> Table:

@@ -42,7 +42,7 @@ INTERESTING_U16 = (0, 1, 2, 3, 5, 6, 23, 24, 25, 29, 184, 185, 186, 190, 0xFF, 0
 SPECIAL_DOUBLES = (math.nan, math.inf, -math.inf, -0.0, 1e308, 5e-324, 90.0, -180.0)
 LAYERS = ("air", "words", "l1", "rf")
 
-#: The spec's worked example (wire §11): robot 7, BROADCAST "cmd"=22 + JOIN 3.
+#: The spec's worked example (docs/bundle.md#worked-example): robot 7, BROADCAST "cmd"=22 + JOIN 3.
 EXAMPLE = B.Bundle(
     7,
     (bytes.fromhex("00 03 0003 636d64 01 00000016"), bytes.fromhex("04 0003")),

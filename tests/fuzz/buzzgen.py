@@ -1,4 +1,4 @@
-"""Random but valid Buzz source programs, from the grammar of spec §3.
+"""Random but valid Buzz source programs, from the grammar of docs/language.md#grammar.
 
 `generate_program(chooser)` returns a `GeneratedProgram`: the source text plus the global
 functions it defines (name and parameter count), which the differential oracle calls a
@@ -188,7 +188,7 @@ class BuzzGen:
             lines += self.method_table()
         for _ in range(ch.integer(0, 2) if ch.chance(0.4) else 0):
             lines += self.global_lambda()
-        if ch.chance(0.05):  # replaced by the library at load time (spec §7.3)
+        if ch.chance(0.05):  # replaced by the library at load time (docs/bytecode.md#loading)
             lines.append("function size(x) { return 99 }")
         nfun = ch.integer(0, 4)
         for rank in range(1, nfun + 1):

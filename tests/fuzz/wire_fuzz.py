@@ -47,7 +47,8 @@ INTERESTING_BYTES = (0, 1, 2, 3, 4, 5, 6, 7, 0x7F, 0x80, 0xFE, 0xFF)
 INTERESTING_U16 = (0, 1, 2, 0x7F, 0x80, 0xFF, 0x100, 0x7FFF, 0x8000, 0xFFFE, 0xFFFF)
 INTERESTING_I32 = (0, 1, -1, 0x7FFFFFFF, -0x80000000, -0x7FFFFFFF, 129, 128, -125, -149, 256)
 
-#: Payloads from the spec (wire §2, §11), mutated like generated ones.
+#: The documented payloads (docs/wire-format.md#message-types, docs/bundle.md#worked-example),
+#: mutated like generated ones.
 SEEDS = [
     bytes.fromhex(x)
     for x in (

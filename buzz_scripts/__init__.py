@@ -1,0 +1,1 @@
+"""Shipped Buzz scripts, includes, task graphs and examples: `fieldkit.buzz_scripts`."""

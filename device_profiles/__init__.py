@@ -1,0 +1,1 @@
+"""Shipped device profiles: package data, installed as `fieldkit.device_profiles`."""
