@@ -13,14 +13,14 @@ never raises: it only moves counters in `stats`.
 
 Robot ids on an XBee mesh come from the radios' 64-bit serial numbers, looked up in a table
 (`IdTable`, built from a profile's `radio.id_map`), as XbeeMav does with its
-Resources/database.xml (spec wire §9.6). A frame from a serial that is not in the table is
+Resources/database.xml (docs/bundle.md#addresses). A frame from a serial that is not in the table is
 counted as `unknown_senders` and, by default (`unknown="drop"`), dropped: the table is the
 fleet list, and a stranger's frames should not be attributed to some robot id. With
 `unknown="sysid"` the sender id is taken from the XbeeMav packet itself (the sysid byte of an
 'S' packet, the address byte of 'F'/'P'/'A'), which is what XbeeMav effectively does (it
 ignores the 64-bit source); `fieldkit.radio.from_profile` picks that policy when the
 profile's table is empty. (ROSBuzz takes the sender id from the bundle header in any case,
-spec wire §8.4; the id `poll` reports is the link-level one.)
+docs/bundle.md#receive-path; the id `poll` reports is the link-level one.)
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ UnknownSenders = Literal["drop", "sysid"]
 UNKNOWN_POLICIES: tuple[str, ...] = ("drop", "sysid")
 """The allowed `UnknownSenders` values."""
 MAX_ROBOT_ID = 255
-"""ROSBuzz, XbeeMav and MAVLink sysid all hold robot ids in 8 bits (spec wire §0)."""
+"""ROSBuzz, XbeeMav and MAVLink sysid all hold robot ids in 8 bits (docs/bundle.md#robot-ids)."""
 
 
 @runtime_checkable
@@ -78,7 +78,9 @@ def parse_serial(serial: str | int) -> int:
 
 
 class IdTable:
-    """XBee 64-bit serial -> robot id (0..255), like XbeeMav's database.xml (spec wire §9.6)."""
+    """XBee 64-bit serial -> robot id (0..255), like XbeeMav's database.xml.
+
+    See docs/bundle.md#addresses."""
 
     def __init__(self, mapping: Mapping[str, int] | Mapping[int, int] | None = None) -> None:
         self._ids: dict[int, int] = {}

@@ -1,4 +1,6 @@
-"""XBee API frames (spec wire §9.2, §11): building them, and de-framing the serial byte stream.
+"""XBee API frames: building them, and de-framing the serial byte stream.
+
+The frame format: docs/bundle.md#xbee-api-frames and #worked-example.
 
 A frame is ``7E | length (u16 BE) | frame data | checksum``: the length counts the frame
 data, the checksum is ``0xFF - (sum of the frame data & 0xFF)``. In API mode 1 (AP=1, what
@@ -10,7 +12,8 @@ Frame types handled: transmit request 0x10 (what we write: broadcast to
 status 0x8A (read, counted, otherwise ignored), AT command response 0x88 (parsed, unused).
 `transmit_request` reproduces XbeeMav's frame byte for byte: frame id 1, 16-bit destination
 FF FF (Digi documents FF FE, "unknown", but XbeeMav sends FF FF and DigiMesh ignores the
-field), radius 0, options 0 — the spec §11 frame ``7e 00 51 10 01 00..00 ff ff ff ff 00 00``.
+field), radius 0, options 0 — the docs/bundle.md#worked-example frame
+``7e 00 51 10 01 00..00 ff ff ff ff 00 00``.
 
 `FrameReader` is the streaming de-framer: `feed(bytes)` returns the complete, checksummed
 frames and keeps any partial one for the next call, so any split of a stream gives the same
@@ -34,10 +37,11 @@ bad_escape, truncated, short_frame, unknown_type, bad_frames (the sum of the six
 garbage_bytes (bytes skipped while hunting for a 0x7E, including the insides of abandoned
 candidates).
 
-Why not digi-xbee's packet classes (ecosystem §4)? We tried them and test against them
-(tests/test_xbee.py builds and parses the same frames with digi-xbee 1.5.0), but the radio
-does not use them at run time: (1) the de-framer is ours anyway (digi-xbee only de-frames
-inside its device reader thread), and once it has checked length and checksum, what is left
+Why not digi-xbee's packet classes (docs/third-party.md#digi-xbee)? We tried them and test
+against them (tests/test_xbee.py builds and parses the same frames with digi-xbee 1.5.0),
+but the radio does not use them at run time: (1) the de-framer is ours anyway (digi-xbee
+only de-frames inside its device reader thread), and once it has checked length and
+checksum, what is left
 is slicing 12 fixed bytes off a 0x90; (2) `build_frame` raises a family of exceptions on
 hostile bytes, re-verifies what we verified, and parsing a 0x90 with it takes 5 to 8 times
 as long as `FrameReader.feed` de-framing and parsing it (~44 µs a frame, idle 2-core box);
@@ -71,13 +75,14 @@ AT_RESPONSE = 0x88
 BROADCAST64 = 0x000000000000FFFF
 """The 64-bit broadcast address."""
 XBEEMAV_DEST16 = 0xFFFF
-"""The 16-bit destination XbeeMav writes (spec wire §9.2, §11)."""
+"""The 16-bit destination XbeeMav writes (docs/bundle.md#xbee-api-frames, #worked-example)."""
 UNKNOWN16 = 0xFFFE
 """Digi's "16-bit address unknown" value, what receive packets carry on DigiMesh."""
 RX_OPT_BROADCAST = 0x02
 """Receive-options bit: the packet was a broadcast."""
 MAX_FRAME_DATA = 270
-"""The longest frame data accepted: XbeeMav treats longer frames as corrupt (spec wire §9.2).
+"""The longest frame data accepted: XbeeMav treats longer frames as corrupt
+(docs/bundle.md#xbee-api-frames).
 
 It fits a transmit request with 256 bytes of RF data (XbeeMav's largest: a 6-byte fragment
 header and 250 bytes), 14 + 256 = 270.

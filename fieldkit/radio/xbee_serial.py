@@ -34,8 +34,8 @@ class XBeeRadio:
     address; `id_map` maps XBee serials (16 hex digits) to robot ids; `unknown` says what to
     do with frames from other serials (see `fieldkit.radio.base`). `send` derives msgid from
     a BUZZ_MESSAGE's message number as ROSBuzz does (so `send(encode(bundle))` writes the
-    spec §11 frame), otherwise from a counter of its own. Engine options (`interframe_s`,
-    `round_wait_s`, ...) go to `XbeeMav`.
+    docs/bundle.md#worked-example frame), otherwise from a counter of its own. Engine options
+    (`interframe_s`, `round_wait_s`, ...) go to `XbeeMav`.
 
     `stats` counts, besides the `XBeeCore`, `FrameReader` and `XbeeMav` counters: bytes_out,
     frames_out, io_errors, reopens, tx_overflow (frames dropped because the port would not

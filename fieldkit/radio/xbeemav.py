@@ -1,4 +1,4 @@
-"""XbeeMav application packets and fragmentation (spec wire §9.3-§9.6), and `XBeeRadio`.
+"""XbeeMav application packets and fragmentation (docs/bundle.md#xbeemav), and `XBeeRadio`.
 
 Packets (RF data of one XBee frame), byte-compatible with XbeeMav:
 
@@ -20,14 +20,16 @@ Where we differ from XbeeMav, and why (none of it changes a byte on the air):
 
 * Sizes: packets up to MAX_PACKET = 255 · 250 = 63,750 bytes (XbeeMav's own limit is 64,000,
   but a 256-fragment packet's count does not fit the ping's u8, so it can never complete);
-  a packet of exactly 250 bytes is fragmented (XbeeMav silently drops it, spec §9.3).
+  a packet of exactly 250 bytes is fragmented (XbeeMav silently drops it,
+  docs/bundle.md#xbeemav-packet).
 * Sending never blocks. Frames wait in queues that `pump()` drains at one frame per
-  `interframe_s` on average (100 ms, spec §9.5; a token bucket of `burst` frames absorbs the
-  node's tick jitter), adapted by ±5 ms after each large packet as XbeeMav does, within
-  [½, 2] times the configured value. Acks go first; while a large packet is in flight,
-  standard packets and the packet's frames alternate (XbeeMav holds standard packets back
-  for the whole transfer, up to 30 s of a robot's heartbeat); the standard queue keeps the
-  newest `max_standard_queue` packets (older ones are dropped and counted).
+  `interframe_s` on average (100 ms, docs/bundle.md#rate-limit; a token bucket of `burst`
+  frames absorbs the node's tick jitter), adapted by ±5 ms after each large packet as
+  XbeeMav does, within [½, 2] times the configured value. Acks go first; while a large
+  packet is in flight, standard packets and the packet's frames alternate (XbeeMav holds
+  standard packets back for the whole transfer, up to 30 s of a robot's heartbeat); the
+  standard queue keeps the newest `max_standard_queue` packets (older ones are dropped and
+  counted).
 * A transfer's rounds: send the pending fragments, ping, wait `round_wait_s` (500 ms) for
   acks, resend what acks report missing (or only the ping when nothing was reported), until
   every known node has acked or `drop_timeout_s` (30 s of wall time; XbeeMav's constant is
@@ -88,7 +90,7 @@ MAX_RF_DATA = FRAGMENT_HEADER + FRAGMENT_DATA
 MAX_ACK_MISSING = MAX_RF_DATA - 3
 """Missing indices one ack lists at most (the rest are asked for in the next round)."""
 DEFAULT_BAUD = 230400
-"""XbeeMav's and the profiles' baud rate (spec wire §9.1)."""
+"""XbeeMav's and the profiles' baud rate (docs/bundle.md#xbeemav-settings)."""
 
 STANDARD = b"S"[0]
 """First byte of a standard packet."""

@@ -1,7 +1,7 @@
 """The safety supervisor: between the script and the vehicle, always on, outside the script.
 
 The script asks; the supervisor decides what the vehicle is told, once per tick. Priority,
-highest first (rosbuzz-node.md §8.3: operator > safety > script):
+highest first (docs/rosbuzz.md#recommendations: operator > safety > script):
 
 1. **Pilot**: an RC override from the backup pilot always wins. The supervisor sends nothing
    while it lasts; the script keeps running but is not obeyed.

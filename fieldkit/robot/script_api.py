@@ -1,10 +1,11 @@
 """The script API: the closures and per-tick globals a Buzz behavior sees on a robot.
 
 The same API, in the simulator and on the field node, so a script runs unmodified in both.
-It is ROSBuzz's (spec rosbuzz-node.md §2), so ROSBuzz scripts run too, without its bugs:
+It is ROSBuzz's (docs/rosbuzz.md#script-api), so ROSBuzz scripts run too, without its bugs:
 
 * `goto_abs(dx, dy, dh, yaw)` latches an absolute target (where the robot is now, plus the
-  offset), held until the next command: no creeping when the script stops commanding (§8.1 #2);
+  offset), held until the next command: no creeping when the script stops commanding
+  (docs/rosbuzz.md#setpoint-creep);
 * commands queue in order (FIFO) instead of overwriting one slot; each goes to the host, which
   checks it against the safety limits before the vehicle sees it;
 * numeric arguments accept ints where ROSBuzz demanded floats (a type error there ends the node);
@@ -29,7 +30,7 @@ from bvm.errors import BuzzError
 from bvm.values import Table, f32, format_value, type_name
 from fieldkit import geo, polygon
 
-#: storegoal refuses goals farther than this (ROSBuzz's rule, rosbuzz §3.5).
+#: storegoal refuses goals farther than this (ROSBuzz's rule, docs/rosbuzz.md#limits).
 MAX_GOAL_DISTANCE_M = 250.0
 
 #: flight.status codes (ROSBuzz, from mavros ExtendedState). Plain ints: they go into the VM.
@@ -208,7 +209,7 @@ class ScriptAPI:
         return out
 
     def _update_robots(self, raw: int) -> None:
-        # ROSBuzz's hysteresis (rosbuzz §2.3): an increase after 2 equal readings, a
+        # ROSBuzz's hysteresis (docs/rosbuzz.md#swarm-size): an increase after 2 equal readings, a
         # decrease after 150, so a few lost swarm lists do not shrink barriers.
         if raw == self.robots:
             self._rising = self._falling = 0

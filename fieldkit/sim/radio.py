@@ -1,9 +1,10 @@
 """The radio relay model of the simulator: who hears a packet, when, and from where.
 
-ROSBuzz has no network simulation (spec rosbuzz §7), so the simulator brings its own. A
-packet a robot sends at tick t reaches every other robot within `range_m` (a broadcast
-medium, as the field's XBee and WiFi radios are), except where its link drops it, after
-`latency` ticks plus 0..`jitter` more (uniform, so packets may overtake each other).
+ROSBuzz has no network simulation (docs/rosbuzz.md#no-network-simulation), so the simulator
+brings its own. A packet a robot sends at tick t reaches every other robot within `range_m`
+(a broadcast medium, as the field's XBee and WiFi radios are), except where its link drops
+it, after `latency` ticks plus 0..`jitter` more (uniform, so packets may overtake each
+other).
 
 Losses, per directed link (sender -> receiver), are either
 

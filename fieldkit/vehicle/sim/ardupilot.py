@@ -5,10 +5,11 @@
     sim.step(0.1)                                  # physics by 0.1 s, telemetry when due
     write(sim.data_to_send())                      # HEARTBEAT, streams, ACKs
 
-Real ArduPilot SITL cannot be built or downloaded here (spec ecosystem §2), so this stands in
-for it, for everything the field node's link uses. `fieldkit.vehicle.sim.vehicle.SimVehicle`
-puts it on a pty, a serial port or a pymavlink URL. UAV profiles behave like ArduCopter, ground
-profiles like ArduPilot Rover:
+Real ArduPilot SITL cannot be built or downloaded here
+(docs/third-party.md#no-autopilot-sitl), so this stands in for it, for everything the field
+node's link uses. `fieldkit.vehicle.sim.vehicle.SimVehicle` puts it on a pty, a serial port
+or a pymavlink URL. UAV profiles behave like ArduCopter, ground profiles like ArduPilot
+Rover:
 
 - HEARTBEAT every second: MAV_TYPE_QUADROTOR or MAV_TYPE_GROUND_ROVER, MAV_AUTOPILOT_
   ARDUPILOTMEGA, the armed flag in base_mode and ArduPilot's custom mode numbers (pymavlink's
