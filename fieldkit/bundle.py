@@ -45,6 +45,8 @@ from array import array
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from fieldkit.errors import FieldkitError
+
 #: Mavlink payload64[0] message types (ROSBuzz include/rosbuzz/roscontroller.h).
 UPDATER_MESSAGE = 1
 BUZZ_MESSAGE = 2
@@ -84,7 +86,7 @@ _IMAGE_HEAD = struct.Struct("<QQddd")  # the payload64 header words: type/number
 _FIELDS = ("latitude", "longitude", "altitude")
 
 
-class BundleError(ValueError):
+class BundleError(FieldkitError, ValueError):
     """Bytes or words that are not a valid bundle: what is wrong and at which byte offset."""
 
     def __init__(self, what: str, offset: int) -> None:

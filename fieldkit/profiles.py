@@ -25,6 +25,7 @@ from types import MappingProxyType
 from typing import Any, Literal
 
 from fieldkit import resources
+from fieldkit.errors import FieldkitError
 
 PROFILE_DIR = resources.profile_dir()
 """Where bare profile names are looked up: the shipped profiles (`device_profiles/`)."""
@@ -68,7 +69,7 @@ _DEFAULT_MODES: dict[tuple[str, str], tuple[str, str, str, str]] = {
 }
 
 
-class ProfileError(ValueError):
+class ProfileError(FieldkitError, ValueError):
     """A device profile that cannot be used; the message says where and why, one line each."""
 
     def __init__(self, problems: list[str]) -> None:
@@ -105,7 +106,7 @@ class Autopilot:
 
 
 @dataclass(frozen=True)
-class Node:
+class NodeSettings:
     """The field node's own settings."""
 
     loop_rate_hz: float = 10.0
@@ -145,7 +146,7 @@ class Battery:
 
 
 @dataclass(frozen=True)
-class Radio:
+class RadioSettings:
     """The inter-robot radio."""
 
     kind: RadioKind
@@ -163,7 +164,7 @@ class RobotId:
     """Where the robot's id comes from: a fixed value, the hostname's digits, or the XBee.
 
     "hostname" takes the digits at the end of the host name ("solo3" -> 3); "xbee" looks
-    the radio's 64-bit serial up in `Radio.id_map`, as XbeeMav does with its database.
+    the radio's 64-bit serial up in `RadioSettings.id_map`, as XbeeMav does with its database.
     """
 
     source: IdSource
@@ -178,11 +179,11 @@ class Profile:
     vehicle: VehicleKind
     kinematics: Kinematics
     autopilot: Autopilot
-    node: Node
+    node: NodeSettings
     geofence: Geofence
     failsafe: Failsafe
     battery: Battery
-    radio: Radio
+    radio: RadioSettings
     robot_id: RobotId
     description: str = ""
     path: Path | None = None  # the file it was loaded from
@@ -463,7 +464,7 @@ def parse_profile(data: Mapping[str, Any], source: str, path: Path | None = None
     kinematics = _kinematics(c, c.table(data, "kinematics", _KINEMATICS, True), vehicle)
     autopilot = _autopilot(c, c.table(data, "autopilot", _AUTOPILOT, True), vehicle)
     t = c.table(data, "node", _NODE, False)
-    node = Node(c.get(t, "node.loop_rate_hz", _POSITIVE, 10.0)) if t is not None else None
+    node = NodeSettings(c.get(t, "node.loop_rate_hz", _POSITIVE, 10.0)) if t is not None else None
     geofence = _geofence(c, c.table(data, "geofence", _GEOFENCE, not ground), vehicle, kinematics)
     failsafe = _failsafe(c, c.table(data, "failsafe", _FAILSAFE, False), vehicle)
     battery = _battery(c, c.table(data, "battery", _BATTERY, True))
@@ -654,7 +655,7 @@ def _battery(c: _Checker, t: dict[str, Any] | None) -> Battery | None:
     return Battery(full, empty, endurance, capacity)
 
 
-def _radio(c: _Checker, t: dict[str, Any] | None) -> Radio | None:
+def _radio(c: _Checker, t: dict[str, Any] | None) -> RadioSettings | None:
     """[radio]: an XBee needs its serial port; id_map maps XBee serials to robot ids."""
     if t is None:
         return None
@@ -671,7 +672,7 @@ def _radio(c: _Checker, t: dict[str, Any] | None) -> Radio | None:
     id_map = _id_map(c, t.get("id_map", {}))
     if None in (kind, port, baud, api_mode, udp_port, budget, id_map):
         return None
-    return Radio(kind, port, baud, api_mode, udp_port, budget, id_map)
+    return RadioSettings(kind, port, baud, api_mode, udp_port, budget, id_map)
 
 
 def _id_map(c: _Checker, v: Any) -> Mapping[str, int] | None:
@@ -707,7 +708,7 @@ def _id_map(c: _Checker, v: Any) -> Mapping[str, int] | None:
     return MappingProxyType(out) if ok else None
 
 
-def _robot_id(c: _Checker, t: dict[str, Any] | None, radio: Radio | None) -> RobotId | None:
+def _robot_id(c: _Checker, t: dict[str, Any] | None, radio: RadioSettings | None) -> RobotId | None:
     """[robot_id]: "config" needs a value; "xbee" needs an XBee radio with an id_map."""
     if t is None:
         return None

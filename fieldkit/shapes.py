@@ -30,6 +30,7 @@ import bvm
 from bvm.errors import BuzzError
 from bvm.values import to_buzz
 from fieldkit import resources
+from fieldkit.errors import FieldkitError
 
 #: Where the shipped letter graphs live (P, O, L, Y).
 GRAPH_DIR = resources.graph_dir()
@@ -40,12 +41,12 @@ LETTER_GAP = 6.0
 Point = tuple[float, float]  # (north, east) metres
 
 
-class GraphError(ValueError):
+class GraphError(FieldkitError, ValueError):
     """A `.graph` file or shape name that cannot be turned into a task graph."""
 
 
 @dataclass(frozen=True)
-class Node:
+class GraphNode:
     """One task: its label, its predecessor's label, and its offset from the predecessor."""
 
     label: int
@@ -73,9 +74,9 @@ def _float_field(text: str, what: str, where: str) -> float:
     return value
 
 
-def parse_graph(text: str, path: str = "<graph>") -> list[Node]:
+def parse_graph(text: str, path: str = "<graph>") -> list[GraphNode]:
     """Parse `.graph` text into nodes ordered predecessor-first; errors name `path:line`."""
-    nodes: dict[int, Node] = {}
+    nodes: dict[int, GraphNode] = {}
     for number, raw in enumerate(text.splitlines(), start=1):
         fields = raw.split("#", 1)[0].split()
         if not fields:
@@ -101,7 +102,7 @@ def parse_graph(text: str, path: str = "<graph>") -> list[Node]:
             raise GraphError(
                 f"{where}: duplicate Label {label} (first defined on line {nodes[label].line})"
             )
-        nodes[label] = Node(label, pred, distance, bearing, height, number)
+        nodes[label] = GraphNode(label, pred, distance, bearing, height, number)
     if not nodes:
         raise GraphError(f"{path}: no nodes")
     roots = [n for n in nodes.values() if n.pred == -1]
@@ -124,12 +125,12 @@ def parse_graph(text: str, path: str = "<graph>") -> list[Node]:
     return ordered
 
 
-def _tree_order(nodes: list[Node]) -> list[Node]:
+def _tree_order(nodes: list[GraphNode]) -> list[GraphNode]:
     """Nodes reachable from the root, predecessor first: the smallest ready label next."""
-    children: dict[int, list[Node]] = {}
+    children: dict[int, list[GraphNode]] = {}
     for n in nodes:
         children.setdefault(n.pred, []).append(n)
-    out: list[Node] = []
+    out: list[GraphNode] = []
     ready = [(n.label, n) for n in children.get(-1, [])]
     heapq.heapify(ready)
     while ready:
@@ -140,7 +141,7 @@ def _tree_order(nodes: list[Node]) -> list[Node]:
     return out
 
 
-def read_graph(path: str | Path) -> list[Node]:
+def read_graph(path: str | Path) -> list[GraphNode]:
     """Read and parse one `.graph` file."""
     p = Path(path)
     try:
@@ -150,7 +151,7 @@ def read_graph(path: str | Path) -> list[Node]:
     return parse_graph(text, str(p))
 
 
-def renumber(nodes: list[Node]) -> list[Node]:
+def renumber(nodes: list[GraphNode]) -> list[GraphNode]:
     """The same tree with labels 0..n-1 in predecessor-first order."""
     ordered = _tree_order(nodes)
     new = {n.label: i for i, n in enumerate(ordered)}
@@ -159,7 +160,7 @@ def renumber(nodes: list[Node]) -> list[Node]:
     ]
 
 
-def node_positions(nodes: list[Node]) -> dict[int, Point]:
+def node_positions(nodes: list[GraphNode]) -> dict[int, Point]:
     """Absolute (north, east) of every node, the root at (0, 0)."""
     pos: dict[int, Point] = {}
     for n in _tree_order(nodes):
@@ -186,14 +187,14 @@ def available_letters(graph_dir: str | Path | None = None) -> list[str]:
 
 
 @lru_cache(maxsize=64)
-def _compose_cached(name: str, graph_dir: str) -> tuple[Node, ...]:
+def _compose_cached(name: str, graph_dir: str) -> tuple[GraphNode, ...]:
     directory = Path(graph_dir)
     whole = directory / f"{name}.graph"
     if whole.is_file():  # a hand-made multi-letter graph takes precedence
         return tuple(renumber(read_graph(whole)))
     if not name:
         raise GraphError("empty shape name")
-    out: list[Node] = []
+    out: list[GraphNode] = []
     placed: dict[int, Point] = {}  # label -> absolute position, all letters so far
     previous_root = -1  # label of the previous letter's root
     for letter in name:
@@ -222,14 +223,14 @@ def _compose_cached(name: str, graph_dir: str) -> tuple[Node, ...]:
                 out.append(replace(n, label=base, line=0))
             else:
                 distance, bearing = _polar(placed[previous_root], absolute[n.label])
-                out.append(Node(base, previous_root, distance, bearing, n.height))
+                out.append(GraphNode(base, previous_root, distance, bearing, n.height))
         for lbl, p in absolute.items():
             placed[base + lbl] = p
         previous_root = base
     return tuple(out)
 
 
-def compose(name: str, graph_dir: str | Path | None = None) -> list[Node]:
+def compose(name: str, graph_dir: str | Path | None = None) -> list[GraphNode]:
     """The task graph for a shape name ("P", "PO", "YLOPPOLY"...), labels 0..n-1."""
     return list(_compose_cached(name, str(Path(graph_dir or GRAPH_DIR).resolve())))
 

@@ -9,7 +9,7 @@ import pytest
 
 import bvm
 from fieldkit import shapes
-from fieldkit.shapes import GraphError, Node, parse_graph
+from fieldkit.shapes import GraphError, GraphNode, parse_graph
 
 
 def test_parse_orders_predecessors_first_and_keeps_units() -> None:
@@ -21,7 +21,7 @@ def test_parse_orders_predecessors_first_and_keeps_units() -> None:
     """
     nodes = parse_graph(text, "t.graph")
     assert [n.label for n in nodes] == [0, 1, 2]
-    assert nodes[1] == Node(1, 0, 6.0, 0.0, 1.5, line=5)
+    assert nodes[1] == GraphNode(1, 0, 6.0, 0.0, 1.5, line=5)
     pos = shapes.node_positions(nodes)
     assert pos[1] == pytest.approx((6.0, 0.0))
     assert pos[2] == pytest.approx((6.0, 5.0))  # bearing pi/2 = East

@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from fieldkit import bundle as B
-from fieldkit.profiles import Radio
+from fieldkit.profiles import RadioSettings
 from fieldkit.radio import RadioLink, UdpRadio, from_profile, open_radio
 from fieldkit.radio import udp as U
 
@@ -175,7 +175,7 @@ def test_unreachable_destination_is_counted() -> None:
 def test_from_profile_udp() -> None:
     """kind = "udp": the profile's port, broadcast on every interface."""
     port = free_port()
-    r = from_profile(Radio("udp", "", 230400, 1, port, 190), 4)
+    r = from_profile(RadioSettings("udp", "", 230400, 1, port, 190), 4)
     assert isinstance(r, UdpRadio) and r.port == port
     assert r.destinations == [("255.255.255.255", port)]
     r.close()

@@ -29,7 +29,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fieldkit import bundle as B
-from fieldkit.profiles import Radio
+from fieldkit.profiles import RadioSettings
 from fieldkit.radio import RadioLink, XBeeRadio, from_profile, open_radio
 from fieldkit.radio import xbee as X
 from fieldkit.radio import xbeemav as M
@@ -631,11 +631,11 @@ def test_from_url_forms(mesh: Callable[[int], Mesh]) -> None:
 def test_from_profile(mesh: Callable[[int], Mesh]) -> None:
     """A profile's [radio]: port, baud, API mode, id_map; an empty id_map means sysid."""
     m = mesh(1).add(SERIALS[1])
-    radio = Radio("xbee", m.path, 230400, 2, 24580, 190, ID_MAP)
+    radio = RadioSettings("xbee", m.path, 230400, 2, 24580, 190, ID_MAP)
     r = from_profile(radio, 1)
     assert isinstance(r, XBeeRadio)
     assert (r.api_mode, r.unknown, r.ids.lookup(SERIALS[2])) == (2, "drop", 2)
     r.close()
-    r = from_profile(Radio("xbee", m.path, 230400, 1, 24580, 190), 1)
+    r = from_profile(RadioSettings("xbee", m.path, 230400, 1, 24580, 190), 1)
     assert isinstance(r, XBeeRadio) and r.unknown == "sysid"
     r.close()

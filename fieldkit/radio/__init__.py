@@ -24,7 +24,7 @@ from .xbee_serial import XBeeRadio
 from .xbeemav import XbeeMav
 
 if TYPE_CHECKING:
-    from fieldkit.profiles import Radio
+    from fieldkit.profiles import RadioSettings
 
 __all__ = [
     "IdTable",
@@ -48,7 +48,7 @@ def open_radio(url: str, robot_id: int, **kwargs: Any) -> RadioLink:
 
 
 def from_profile(
-    radio: Radio, robot_id: int, *, clock: Callable[[], float] | None = None
+    radio: RadioSettings, robot_id: int, *, clock: Callable[[], float] | None = None
 ) -> RadioLink:
     """The radio of a profile's `[radio]` table.
 

@@ -101,10 +101,6 @@ class IdTable:
         """The robot id of a 64-bit serial, or None if the serial is not in the table."""
         return self._ids.get(serial)
 
-    def serial_of(self, robot_id: int) -> int | None:
-        """The 64-bit serial of a robot id, or None."""
-        return self._serials.get(robot_id)
-
     def __len__(self) -> int:
         """How many radios the table lists."""
         return len(self._ids)

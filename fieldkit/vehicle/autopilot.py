@@ -36,6 +36,7 @@ from typing import Any
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
 
+from fieldkit.errors import FieldkitError
 from fieldkit.profiles import Profile
 from fieldkit.vehicle.mavlink import FrameReader, new_codec
 
@@ -72,7 +73,7 @@ _HOME_RATE_HZ = 0.5
 _STATUSTEXT_WINDOW_S = 2.0
 
 
-class AutopilotError(Exception):
+class AutopilotError(FieldkitError):
     """The autopilot link cannot do what was asked; the message says what and why."""
 
 

@@ -50,6 +50,7 @@ from typing import Any
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
 
+from fieldkit.errors import FieldkitError
 from fieldkit.geo import LocalFrame
 from fieldkit.profiles import Profile
 from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
@@ -125,7 +126,7 @@ _UINT16_MAX = 65535
 _MOVING_MPS = 0.05
 
 
-class VehicleSimError(Exception):
+class VehicleSimError(FieldkitError):
     """The simulated vehicle cannot start (a port it cannot open, a bad home)."""
 
 
