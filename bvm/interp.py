@@ -1,6 +1,6 @@
 """The reference interpreter: one bytecode instruction at a time, exactly as the C VM steps.
 
-It runs what the translator (bvm/translate.py) declines: the load-time prologue,
+It runs what the translator (bvm/translate/) declines: the load-time prologue,
 hand-made or hostile bytecode whose control flow has no structured shape, and calls
 with an unexpected number of arguments. It is also the oracle the translator is fuzzed
 against. It is small and slow on purpose; speed lives in the translator.

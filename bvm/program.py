@@ -44,6 +44,14 @@ class Instruction:
     arg: int | float | None
     next: int
 
+    @property
+    def int_arg(self) -> int:
+        """The argument of an instruction that takes an int (every one but `pushf`)."""
+        arg = self.arg
+        if not isinstance(arg, int):
+            raise TypeError(f"{self.op.mnemonic} at {self.addr} has no int argument")
+        return arg
+
 
 @dataclass
 class Program:

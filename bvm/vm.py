@@ -7,7 +7,7 @@
     vm.call("init")
     vm.call("step")
 
-Bytecode functions run as Python functions made by bvm/translate.py, falling back to
+Bytecode functions run as Python functions made by the translator (bvm/translate/), falling back to
 bvm/interp.py for whatever the translator declines. Both call closures the same way,
 `c.fn(c, *args)`, so they mix freely.
 """
@@ -25,6 +25,7 @@ from bvm.budget import Budget, BudgetTimeout
 from bvm.errors import BuzzBudgetExceeded, BuzzError
 from bvm.interp import Halt, interpret
 from bvm.program import Program
+from bvm.translate import DEFAULT_OPTIONS, TranslateOptions
 from bvm.values import Closure, to_buzz, to_python, type_name
 
 _log = logging.getLogger("bvm")
@@ -100,7 +101,12 @@ class Entry:
             else:
                 try:
                     f = _translate.translate(
-                        self.vm, self.addr, self.n_actrec, len(args), speculate=spec
+                        self.vm,
+                        self.addr,
+                        self.n_actrec,
+                        len(args),
+                        speculate=spec,
+                        options=self.vm.translate_options,
                     )
                 except _translate.NotStructured as e:
                     _log.debug("function @%d (specialized): not translated: %s", self.addr, e)
@@ -115,7 +121,9 @@ class Entry:
             f = self.general_by_arity[nargs] = self._interpreted()
         if f is None:
             try:
-                f = _translate.translate(self.vm, self.addr, self.n_actrec, nargs)
+                f = _translate.translate(
+                    self.vm, self.addr, self.n_actrec, nargs, options=self.vm.translate_options
+                )
             except _translate.NotStructured as e:
                 _log.info("function @%d runs on the interpreter: %s", self.addr, e)
                 f = self._interpreted()
@@ -146,13 +154,16 @@ class VM:
         max_ticks: int | None = None,
         max_seconds: float | None = None,
         translate: bool = True,
+        translate_options: TranslateOptions = DEFAULT_OPTIONS,
     ) -> None:
         """`max_ticks` bounds the loop iterations of one entry (execute or call), the same
         on every run; `max_seconds` bounds its wall time, whatever the script does.
         Exceeding either is a BuzzBudgetExceeded.
-        `translate=False` runs everything on the reference interpreter (for testing)."""
+        `translate=False` runs everything on the reference interpreter (for testing);
+        `translate_options` tunes the translator (its optimizations, its code cache)."""
         self.robot_id = robot_id & 0xFFFF
         self.translate = translate
+        self.translate_options = translate_options
         self.rng_seed = rng_seed
         # Buzz globals and the helpers of translated code share one dict: it is the
         # generated functions' module globals. Buzz names never start with "_".
@@ -258,7 +269,12 @@ class VM:
                 # its bound names must not be bound again to other values.
                 try:
                     self._toplevel = _translate.translate(
-                        self, self._global_start, 0, 0, toplevel=True
+                        self,
+                        self._global_start,
+                        0,
+                        0,
+                        toplevel=True,
+                        options=self.translate_options,
                     )
                 except _translate.NotStructured as e:
                     _log.info("global code runs on the interpreter: %s", e)

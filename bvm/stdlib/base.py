@@ -16,6 +16,7 @@ from __future__ import annotations
 from typing import Any
 
 from bvm.errors import BuzzError
+from bvm.inline import inline
 from bvm.values import Closure, Table, Userdata, f2i, f32, type_name
 
 _Vm = Any  # the VM: new_native, call_closure, globals (see bvm/stdlib/__init__.py)
@@ -96,15 +97,13 @@ def b_clone(_self: Any, x: Any) -> Any:
     return clone(x)
 
 
+# What the translator may emit instead of a call, for arguments of these types.
+@inline("{len}({0})", "table")
 def b_size(_self: Any, t: Any) -> int:
     """size(t): the number of entries of a table."""
     if t.__class__ is not Table:
         raise expected("table", t)
     return len(t)
-
-
-# What the translator may emit instead of a call, for arguments of these types.
-b_size.inline = ("_len({0})", ("table",))  # type: ignore[attr-defined]
 
 
 def b_isnil(_self: Any, x: Any) -> int:
