@@ -23,7 +23,7 @@ from typing import Any, Literal
 from bvm import translate as _translate
 from bvm.budget import Budget, BudgetTimeout
 from bvm.errors import BuzzBudgetExceeded, BuzzError
-from bvm.interp import Halt, interpret
+from bvm.interp import Halt, interpret, recorded_pcs
 from bvm.program import Program
 from bvm.translate import DEFAULT_OPTIONS, TranslateOptions
 from bvm.values import Closure, to_buzz, to_python, type_name
@@ -512,23 +512,24 @@ class VM:
             return None
         except BudgetTimeout as e:
             err = BuzzBudgetExceeded(self.budget.timeout_message())
-            raise self._fail(err, e.__traceback__) from None
+            raise self._fail(err, e) from None
         except BuzzError as e:
-            raise self._fail(e, e.__traceback__) from None
+            raise self._fail(e, e) from None
         except RecursionError as e:
             err = BuzzError("stack overflow: function calls nested too deeply")
-            raise self._fail(err, e.__traceback__) from None
+            raise self._fail(err, e) from None
         except MemoryError as e:
-            raise self._fail(BuzzError("out of memory"), e.__traceback__) from None
+            raise self._fail(BuzzError("out of memory"), e) from None
         except Exception as e:
-            raise self._fail(_unexpected(e), e.__traceback__) from None
+            raise self._fail(_unexpected(e), e) from None
         finally:
             self.budget.stop()
             self._depth = 0
 
-    def _fail(self, err: BuzzError, tb: Any = None) -> BuzzError:
-        if err.offset is None and tb is not None:
-            err.offset = _locate(tb)
+    def _fail(self, err: BuzzError, cause: BaseException | None = None) -> BuzzError:
+        """Enter the error state with `err`, located where `cause` was raised."""
+        if err.offset is None and cause is not None:
+            err.offset = _locate(cause)
         if err.offset is not None and self.program is not None:
             err.location = self.program.location(err.offset)
         self.state = "error"
@@ -557,13 +558,16 @@ def _unexpected(e: Exception) -> BuzzError:
     return BuzzError(f"host function error: {type(e).__name__}: {e}")
 
 
-def _locate(tb: Any) -> int | None:
-    """Bytecode offset of the innermost Buzz frame (interpreted or translated) in a traceback."""
+def _locate(exc: BaseException) -> int | None:
+    """Bytecode offset of the innermost Buzz frame (interpreted or translated) that `exc`
+    was raised through."""
     offset = None
+    pcs = recorded_pcs(exc)
+    tb = exc.__traceback__
     while tb is not None:
         code = tb.tb_frame.f_code
         if code is _INTERP_CODE:
-            offset = tb.tb_frame.f_locals.get("oldpc", offset)
+            offset = pcs.get(tb, offset)
         else:
             lines = _translate.LINE_MAPS.get(code)
             if lines is not None and tb.tb_lineno < len(lines):

@@ -139,6 +139,22 @@ def test_runtime_error_locations(
 
 
 @BOTH
+def test_error_in_nested_calls_is_located_in_the_innermost_buzz_frame(translate: bool) -> None:
+    # Buzz -> host -> Buzz -> Buzz: each frame on the way out must not move the location
+    # the innermost one gave (the interpreter records it as the exception leaves a frame).
+    src = (
+        "function inner(t) {\n  return t.x.y\n}\n"
+        "function middle(v) {\n  var a = 1\n  return inner({})\n}\n"
+        "function outer() {\n  var t = {.a = 1}\n  foreach(t, function(k, v) { middle(v) })\n}\n"
+    )
+    vm, _ = make_vm(src, translate)
+    with pytest.raises(bvm.BuzzError, match="expected table, got nil") as info:
+        vm.call("outer")
+    assert info.value.location is not None
+    assert info.value.location[1:] == (3, 0), str(info.value)
+
+
+@BOTH
 def test_missing_argument_reads_fail_and_extra_arguments_are_ignored(translate: bool) -> None:
     src = "function f(a, b) { return b }\nfunction g(a) { return a }\n"
     vm, _ = make_vm(src, translate)
