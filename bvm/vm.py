@@ -17,7 +17,8 @@ from __future__ import annotations
 import inspect
 import logging
 import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
+from types import MappingProxyType
 from typing import Any, Literal
 
 from bvm import translate as _translate
@@ -144,7 +145,13 @@ class Entry:
 
 
 class VM:
-    """A Buzz virtual machine for one robot."""
+    """A Buzz virtual machine for one robot.
+
+    `globals` is the public fast global namespace: a plain dict from Buzz global name to
+    Buzz value (see bvm.values), which a host may read and write directly once a step
+    (one dict operation, against `vm[name]`'s conversions). Writes must be Buzz values;
+    names starting with `_` belong to the translator's helpers and must not be touched.
+    """
 
     def __init__(
         self,
@@ -447,6 +454,31 @@ class VM:
 
     # ------------------------------------------------------------ swarm host interface
 
+    @property
+    def counters(self) -> Mapping[str, int]:
+        """The network counters, read-only: `received`, `sent`, `decode_errors`,
+        `inbox_overflow`, `outbox_overflow`, `oversize_dropped`, ... and those the host
+        bumped with `count`; a name never counted reads 0. Reset by `load`."""
+        return MappingProxyType(self.net.stats)
+
+    def count(self, name: str, n: int = 1) -> None:
+        """Add `n` to the counter `name`, for what the host sees of this robot's traffic
+        before it reaches the VM (e.g. `bundle_errors`, a bundle that did not unpack)."""
+        self.net.stats[name] += n
+
+    @property
+    def peer_count(self) -> int:
+        """How many other robots this VM holds swarm memberships of (from their lists)."""
+        return len(self.swarms.peers)
+
+    def set_neighbor_columns(
+        self, ids: list[int], distances: list[float], azimuths: list[float]
+    ) -> None:
+        """The fast `set_neighbors` for a host that computes a whole swarm at once: the
+        same neighbours as columns, every distance and azimuth already a binary32 value,
+        every id valid (0..65535) and every elevation 0. Nothing is checked."""
+        self.neighbors.set_columns(ids, distances, azimuths)
+
     def set_neighbors(self, entries: Iterable[tuple[int, float, float, float]]) -> None:
         """Replace this step's neighbors: (robot id, distance, azimuth, elevation) each,
         distance in metres, angles in radians (azimuth from north, positive toward east)."""
@@ -458,7 +490,7 @@ class VM:
 
     def process_inbox(self) -> None:
         """Apply the received messages (listeners run now). A payload that does not decode
-        is counted in `vm.net.stats` and skipped; a listener's error is a BuzzError."""
+        is counted in `counters` and skipped; a listener's error is a BuzzError."""
         self._require_program()
         if self.state == "done":
             self.state = "ready"
