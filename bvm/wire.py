@@ -62,6 +62,7 @@ from dataclasses import dataclass, fields
 from enum import IntEnum
 from typing import Any, ClassVar
 
+from bvm.errors import BvmError
 from bvm.values import Closure, Table, Userdata
 
 __all__ = [
@@ -93,11 +94,11 @@ MAX_STRING = 0xFFFF
 MAX_TABLE = 0xFF
 
 
-class DecodeError(ValueError):
+class DecodeError(BvmError, ValueError):
     """A payload that is not a valid Buzz message or object (says what, and at which byte)."""
 
 
-class EncodeError(ValueError):
+class EncodeError(BvmError, ValueError):
     """A value or message that cannot be put on the wire without corrupting the stream."""
 
 
