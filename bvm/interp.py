@@ -86,6 +86,8 @@ def interpret(
     the pc that follows it.
     """
     program = vm.program
+    if program is None:
+        raise BuzzError("no code loaded")
     size = len(program.bytecode)
     decode = program.decode
     charge = vm.budget.charge  # one loop iteration per backward jump (bvm/budget.py)
@@ -206,30 +208,30 @@ def interpret(
             elif op is Op.PUSHF or op is Op.PUSHI:
                 push(ins.arg)
             elif op is Op.PUSHS:
-                s = program.string(ins.arg)  # type: ignore[arg-type]
+                s = program.string(ins.arg)  # type: ignore[arg-type]  # only pushf's is a float
                 if s is None:
-                    raise BuzzError(f"unknown string id: id read = {ins.arg & 0xFFFF}")  # type: ignore[operator]
+                    raise BuzzError(f"unknown string id: id read = {ins.arg & 0xFFFF}")  # type: ignore[operator]  # only pushf's is a float
                 push(s)
             elif op is Op.PUSHCN:
-                push(vm.make_closure(ins.arg, (None,)))  # type: ignore[arg-type]
+                push(vm.make_closure(ins.arg, (None,)))  # type: ignore[arg-type]  # only pushf's is a float
             elif op is Op.PUSHCC:
-                push(vm.native_closure(ins.arg))  # type: ignore[arg-type]
+                push(vm.native_closure(ins.arg))  # type: ignore[arg-type]  # only pushf's is a float
             elif op is Op.PUSHL:
                 # A lambda captures the creator's locals by value; at top level, just a nil self.
                 actrec = tuple(lsyms) if lsyms else (None,)
-                push(vm.make_closure(ins.arg, actrec))  # type: ignore[arg-type]
+                push(vm.make_closure(ins.arg, actrec))  # type: ignore[arg-type]  # only pushf's is a float
             elif op is Op.LLOAD:
-                i = ins.arg
-                if i >= len(lsyms):  # type: ignore[operator]
+                i: int = ins.arg  # type: ignore[assignment]  # only pushf's is a float
+                if i >= len(lsyms):
                     raise BuzzError(_NOT_ENOUGH_LOCALS)
-                push(lsyms[i])  # type: ignore[index]
+                push(lsyms[i])
             elif op is Op.LSTORE:
                 if not stack:
                     raise _empty()
-                i = ins.arg
+                i = ins.arg  # type: ignore[assignment]  # only pushf's is a float
                 v = pop()
-                if i < len(lsyms):  # type: ignore[operator]
-                    lsyms[i] = v  # type: ignore[index]
+                if i < len(lsyms):
+                    lsyms[i] = v
                 elif i >= MAX_LOCALS:  # hand-made bytecode: don't let one frame eat memory
                     raise BuzzError(
                         "wrong number of local variables: "
@@ -237,17 +239,17 @@ def interpret(
                     )
                 else:
                     # Storing past the end grows the record; the gap is nil.
-                    lsyms.extend([None] * (i - len(lsyms)))  # type: ignore[operator]
+                    lsyms.extend([None] * (i - len(lsyms)))
                     lsyms.append(v)
             elif op is Op.LREMOVE:
-                n = ins.arg
+                count: int = ins.arg  # type: ignore[assignment]  # only pushf's is a float
                 # A function's record also holds `self`; the top level's holds only block locals.
-                if n + (0 if toplevel else 1) > len(lsyms):  # type: ignore[operator]
+                if count + (0 if toplevel else 1) > len(lsyms):
                     raise BuzzError(_TOO_FEW_LOCALS)
-                if n:
-                    del lsyms[len(lsyms) - n :]  # type: ignore[operator]
+                if count:
+                    del lsyms[len(lsyms) - count :]
             elif op is Op.JUMP:
-                pc = _target(ins.arg, size)  # type: ignore[arg-type]
+                pc = _target(ins.arg, size)  # type: ignore[arg-type]  # only pushf's is a float
                 if pc <= ins.addr:
                     charge(1)
             elif op is Op.JUMPZ or op is Op.JUMPNZ:
@@ -255,7 +257,7 @@ def interpret(
                     raise _empty()
                 x = pop()
                 if is_true(x) == (op is Op.JUMPNZ):
-                    pc = _target(ins.arg, size)  # type: ignore[arg-type]
+                    pc = _target(ins.arg, size)  # type: ignore[arg-type]  # only pushf's is a float
                     if pc <= ins.addr:
                         charge(1)
             else:  # pragma: no cover - every opcode is handled above

@@ -121,9 +121,10 @@ class Program:
         if op is Op.PUSHF:
             arg: int | float = _PUSHF.unpack_from(bc, pc + 1)[0]
         else:
-            arg = _ARG.unpack_from(bc, pc + 1)[0]
+            word: int = _ARG.unpack_from(bc, pc + 1)[0]
             if op is Op.PUSHI:
-                arg = arg - 0x100000000 if arg & 0x80000000 else arg
+                word = word - 0x100000000 if word & 0x80000000 else word
+            arg = word
         return Instruction(pc, op, arg, pc + 5)
 
 

@@ -19,7 +19,7 @@ import logging
 import sys
 from collections.abc import Callable, Iterable, Mapping
 from types import MappingProxyType
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from bvm import translate as _translate
 from bvm.budget import Budget, BudgetTimeout
@@ -28,6 +28,9 @@ from bvm.interp import Halt, interpret, recorded_pcs
 from bvm.program import Program
 from bvm.translate import DEFAULT_OPTIONS, TranslateOptions
 from bvm.values import Closure, to_buzz, to_python, type_name
+
+if TYPE_CHECKING:
+    from bvm.stdlib.rng import MersenneTwister
 
 _log = logging.getLogger("bvm")
 
@@ -152,6 +155,9 @@ class VM:
     (one dict operation, against `vm[name]`'s conversions). Writes must be Buzz values;
     names starting with `_` belong to the translator's helpers and must not be touched.
     """
+
+    #: The generator behind `math.rng`, made by the library's installation at `load`.
+    rng: MersenneTwister
 
     def __init__(
         self,
@@ -543,7 +549,7 @@ class VM:
             self.state = "done"
             return None
         except BudgetTimeout as e:
-            err = BuzzBudgetExceeded(self.budget.timeout_message())
+            err: BuzzError = BuzzBudgetExceeded(self.budget.timeout_message())
             raise self._fail(err, e) from None
         except BuzzError as e:
             raise self._fail(e, e) from None

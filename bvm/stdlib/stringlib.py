@@ -17,13 +17,14 @@ import math
 import re
 from decimal import Decimal
 from fractions import Fraction
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bvm.errors import BuzzError
 from bvm.inline import inline
 from bvm.values import MAX_STRING_BYTES, Table, f32, format_value, type_name
 
-_Vm = Any
+if TYPE_CHECKING:
+    from bvm.host import LibraryHost
 
 _LONG_MAX = 0x7FFFFFFFFFFFFFFF
 
@@ -230,7 +231,7 @@ def s_tofloat(_self: Any, s: Any) -> float | None:
     return strtof(s)
 
 
-def register(vm: _Vm) -> None:
+def register(vm: LibraryHost) -> None:
     """Register the `string` table (C-function ids 59-64)."""
     new = vm.new_native
     t = Table()

@@ -573,10 +573,10 @@ class Codegen:
         elif op is Op.RET0 or op is Op.RET1:
             if self.toplevel:
                 raise NotStructured("return at top level")
-            e = None if op is Op.RET0 else self.pop()
-            value = "None" if e is None else self.val(e)
+            ret = None if op is Op.RET0 else self.pop()
+            value = "None" if ret is None else self.val(ret)
             self.settle(at)
-            selfcall.emit_return_check(self, NIL if e is None else self.vtype(e), value, at)
+            selfcall.emit_return_check(self, NIL if ret is None else self.vtype(ret), value, at)
             self.emit(f"return {value}", at)
             self.stack.clear()
             self.dead = True
