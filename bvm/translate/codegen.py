@@ -125,6 +125,7 @@ class Codegen:
     # ------------------------------------------------------------ helpers
 
     def emit(self, text: str, offset: int, flags: int = 0, indent: int | None = None) -> None:
+        """Append one line of generated code, attributed to bytecode `offset`."""
         indent = self.indent if indent is None else indent
         if indent > MAX_NESTING:
             raise NotStructured("nesting too deep")
@@ -136,10 +137,12 @@ class Codegen:
         self.lines.append((indent, text, offset, flags))
 
     def temp(self) -> str:
+        """A new temporary's name."""
         self.ntemps += 1
         return f"_t{self.ntemps}"
 
     def push(self, code: str, ty: str = ANY, const: Any = None, rng: Range = None) -> None:
+        """Push a symbolic entry."""
         self.stack.append(Expr(code, ty, const, rng=rng))
 
     def fresh(self, prefix: str) -> str:
@@ -147,11 +150,13 @@ class Codegen:
         return f"{prefix}{self.key}_{next(self._names)}"
 
     def pop(self) -> Expr:
+        """Pop a symbolic entry; NotStructured on underflow (hand-made bytecode)."""
         if not self.stack:
             raise NotStructured("stack underflow")
         return self.stack.pop()
 
     def literal(self, value: Any) -> None:
+        """Push a constant."""
         if value is None:
             self.push("None", NIL)
             return
@@ -190,6 +195,7 @@ class Codegen:
         return f"({c} is not None and ({c}.__class__ is not _int or {c} != 0))"
 
     def falsity(self, e: Expr) -> str:
+        """Code for the Buzz falsity of an entry."""
         return f"not {self.truth(e)}"
 
     @staticmethod
@@ -674,6 +680,7 @@ class Codegen:
         return True
 
     def helper_binary(self, ins: Instruction) -> None:
+        """div, mod, pow and the bitwise operators: inline where the types allow."""
         b, a = self.pop(), self.pop()
         if ins.op is Op.DIV:
             a, b = self.float_literal(a, b)
@@ -722,6 +729,7 @@ class Codegen:
         self.push(t, ty)
 
     def unary_minus(self, ins: Instruction) -> None:
+        """Negation: int32 wrap for ints, plain for floats, the full rule otherwise."""
         a = self.pop()
         t = self.temp()
         if a.ty == INT:
@@ -736,6 +744,7 @@ class Codegen:
             self.push(t, ANY)
 
     def compare(self, ins: Instruction) -> None:
+        """A comparison: a plain Python expression where it cannot fail."""
         b, a = self.pop(), self.pop()
         sym, slow = _COMPARE[ins.op]
         av, bv = self.val(a), self.val(b)
@@ -775,6 +784,7 @@ class Codegen:
         self.push(t, BOOL)
 
     def gload(self, ins: Instruction) -> None:
+        """A global read: the Python global itself when the name is a literal identifier."""
         name = self.pop()
         t = self.temp()
         pyname = python_name(name.const) if name.ty == STR and name.is_literal else None
@@ -786,6 +796,7 @@ class Codegen:
             self.push(t)
 
     def gstore(self, ins: Instruction) -> None:
+        """A global write, like gload."""
         v, name = self.pop(), self.pop()
         pyname = python_name(name.const) if name.ty == STR and name.is_literal else None
         if pyname is not None:
@@ -795,12 +806,14 @@ class Codegen:
             self.emit(f"_gstore({self.val(name)}, {self.val(v)})", ins.addr)
 
     def key_test(self, k: Expr) -> list[str]:
+        """The class tests a table key still needs (none when known int or string)."""
         if self.vtype(k) in (INT, STR):
             return []
         c = f"({k.code})" if k.is_literal else k.code  # `-1.5.__class__` would parse wrong
         return [f"({c}.__class__ is _str or {c}.__class__ is _int)"]
 
     def tget(self, ins: Instruction) -> None:
+        """A table read, inline when the operands are known or tested to be a table and key."""
         k, tab = self.pop(), self.pop()
         t = self.temp()
         kv, tc = self.val(k), self.val(tab)
@@ -817,6 +830,7 @@ class Codegen:
         self.stack.append(Expr(t, origin=origin))
 
     def tput(self, ins: Instruction) -> None:
+        """A table write, inline for plain values; deletions and closures take the full rule."""
         v, k, tab = self.pop(), self.pop(), self.pop()
         kv, vv, tc = self.val(k), self.val(v), self.val(tab)
         at = self.prev_addr(ins)
@@ -922,6 +936,7 @@ class Codegen:
         return inline.expand([self.val(a) for a in args], call), tests
 
     def lstore(self, ins: Instruction) -> None:
+        """A local store, keeping stacked reads of the old value."""
         k = ins.int_arg
         v = self.pop()
         if k > len(self.types) or k >= MAX_LOCALS:
@@ -944,10 +959,12 @@ class Codegen:
         self.used_locals.add(k)
 
     def prev_addr(self, ins: Instruction) -> int:
+        """The address of the instruction before `ins` (where tget/tput errors point)."""
         i = self.index[ins.addr]
         return self.instrs[i - 1].addr if i > 0 else ins.addr
 
     def entry_name(self, addr: int, size: int) -> str:
+        """Bind the entry of the function at `addr` for `size` captured slots."""
         name = f"_e{addr}_{size}"
         self.consts[name] = self.vm.entry(addr, size)
         return name
