@@ -88,11 +88,11 @@ def ticks_per_second(robots: int, measure_s: float) -> tuple[float, float, float
     # Then the barrier's entries spread to every robot (a burst of gossip that grows with
     # the swarm) before traffic settles to the coverage's own.
     window = round(1.0 / TICK_S)
-    received = sum(r.vm.net.stats["received"] for r in sim.robots.values())
+    received = sum(r.vm.counters["received"] for r in sim.robots.values())
     while True:
         for _ in range(window):
             sim.step()
-        now = sum(r.vm.net.stats["received"] for r in sim.robots.values())
+        now = sum(r.vm.counters["received"] for r in sim.robots.values())
         rate, received = (now - received) / (window * robots), now
         settled = rate < QUIET and sim.tick >= deployed + round(SETTLE_S / TICK_S)
         if settled or sim.tick > deployed + round(MAX_GOSSIP_S / TICK_S):

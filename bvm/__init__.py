@@ -24,7 +24,14 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from bvm import wire
-from bvm.errors import BuzzAsmError, BuzzBudgetExceeded, BuzzCompileError, BuzzError, BuzzLoadError
+from bvm.errors import (
+    BuzzAsmError,
+    BuzzBudgetExceeded,
+    BuzzCompileError,
+    BuzzError,
+    BuzzLoadError,
+    BvmError,
+)
 from bvm.program import Program
 from bvm.values import Closure, Table, Userdata
 from bvm.vm import VM
@@ -32,6 +39,7 @@ from bvm.vm import VM
 __all__ = [
     "VM",
     "BuzzAsmError",
+    "BvmError",
     "BuzzBudgetExceeded",
     "BuzzCompileError",
     "BuzzError",

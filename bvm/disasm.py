@@ -160,8 +160,8 @@ def disassemble(bo: bytes, bdb: bytes | None = None) -> str:
                 lines.append(_raw_line(bo[run_start:end], debug.get(run_start)))
                 run_start = None
             continue
-        entry = debug.get(unit.offset)
-        suffix = _debug_suffix(entry) if entry else ""
+        found = debug.get(unit.offset)
+        suffix = _debug_suffix(found) if found else ""
         text = OP_TO_NAME[unit.op]
         if unit.op.has_arg:
             text += f" {_operand(unit, labelled)}"

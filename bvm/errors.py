@@ -1,9 +1,28 @@
-"""The three ways Buzz code can fail: at compile time, at load time, and at run time."""
+"""Every error bvm raises, under one root: `BvmError`.
+
+    BvmError
+    ├── BuzzCompileError     malformed Buzz source
+    ├── BuzzAsmError         malformed Buzz assembly
+    ├── BuzzLoadError        a .bo or .bdb that cannot be loaded
+    ├── BuzzError            a Buzz run-time error, located in the source
+    │   └── BuzzBudgetExceeded   a step ran past its loop or time budget
+    ├── wire.DecodeError     bytes that are not a Buzz message (also a ValueError)
+    └── wire.EncodeError     a value or message the wire cannot carry (also a ValueError)
+
+A host that runs scripts from elsewhere catches `BvmError` for "the script or its data
+is bad" and lets anything else (a bug, or a host misusing the API) through. Exceptions
+that transfer control rather than report an error (the interpreter's `Halt`, the
+translator's `NotStructured`) are not part of it; they never reach a host.
+"""
 
 from __future__ import annotations
 
 
-class BuzzCompileError(Exception):
+class BvmError(Exception):
+    """The root of every error bvm raises."""
+
+
+class BuzzCompileError(BvmError):
     """Malformed source: carries the place, the problem and an optional hint (Rust style)."""
 
     def __init__(
@@ -23,7 +42,7 @@ class BuzzCompileError(Exception):
         return text
 
 
-class BuzzAsmError(Exception):
+class BuzzAsmError(BvmError):
     """Malformed Buzz assembly (.basm) text."""
 
     def __init__(self, path: str, line: int, message: str) -> None:
@@ -36,11 +55,11 @@ class BuzzAsmError(Exception):
         return f"{self.path}:{self.line}: {self.message}"
 
 
-class BuzzLoadError(Exception):
+class BuzzLoadError(BvmError):
     """A .bo or .bdb that cannot be loaded: truncated, corrupted or hostile."""
 
 
-class BuzzError(Exception):
+class BuzzError(BvmError):
     """A Buzz runtime error, reported as `file:line:col: message` once located.
 
     `offset` is the bytecode offset the error is attributed to (the reference's

@@ -13,6 +13,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
+from typing import NoReturn
 
 from bvm.errors import BuzzCompileError
 
@@ -151,7 +152,7 @@ class Lexer:
         self._last_end: tuple[str, int, int] = (path, 1, 0)
         self.main_path = path
 
-    def _error(self, src: _Source, col: int, message: str, hint: str | None = None) -> None:
+    def _error(self, src: _Source, col: int, message: str, hint: str | None = None) -> NoReturn:
         raise BuzzCompileError(src.path, src.line, col, message, hint)
 
     def next_token(self) -> Token:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import collections
 import logging
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bvm import wire
 from bvm.errors import BuzzError
@@ -25,9 +25,10 @@ from bvm.inbox import Inbox
 from bvm.outbox import Outbox
 from bvm.values import Table, copy_tree
 
-_log = logging.getLogger("bvm.net")
+if TYPE_CHECKING:
+    from bvm.host import LibraryHost
 
-_Vm = Any
+_log = logging.getLogger("bvm.net")
 
 # Robots that receive the same bytes (a broadcast heard by every neighbour, in the
 # simulator or on a shared host) share one decoding: payload -> (message, whether it holds
@@ -44,9 +45,9 @@ def _sharing(msg: wire.Message) -> bool | None:
     tables (then each VM must copy them)."""
     kind = msg.type
     if kind == wire.MsgType.BROADCAST:
-        values: tuple[Any, ...] = (msg.value,)  # type: ignore[attr-defined]
+        values: tuple[Any, ...] = (msg.value,)  # type: ignore[attr-defined]  # the kind test says which message
     elif kind in (wire.MsgType.VSTIG_PUT, wire.MsgType.VSTIG_QUERY):
-        values = (msg.key, msg.value)  # type: ignore[attr-defined]
+        values = (msg.key, msg.value)  # type: ignore[attr-defined]  # the kind test says which message
     else:
         return False
     tables = False
@@ -70,20 +71,20 @@ def _plain(t: Table) -> bool:
 def _private(msg: wire.Message) -> wire.Message:
     """The shared message with tables of this VM's own."""
     if msg.type == wire.MsgType.BROADCAST:
-        return wire.Broadcast(msg.topic, copy_tree(msg.value))  # type: ignore[attr-defined]
-    return msg.__class__(  # type: ignore[call-arg]
-        msg.vstig,  # type: ignore[attr-defined]
-        copy_tree(msg.key),  # type: ignore[attr-defined]
-        copy_tree(msg.value),  # type: ignore[attr-defined]
-        msg.timestamp,  # type: ignore[attr-defined]
-        msg.robot,  # type: ignore[attr-defined]
+        return wire.Broadcast(msg.topic, copy_tree(msg.value))  # type: ignore[attr-defined]  # the kind test says which message
+    return msg.__class__(  # type: ignore[call-arg]  # a VSTIG message: its class takes these fields
+        msg.vstig,  # type: ignore[attr-defined]  # the kind test says which message
+        copy_tree(msg.key),  # type: ignore[attr-defined]  # the kind test says which message
+        copy_tree(msg.value),  # type: ignore[attr-defined]  # the kind test says which message
+        msg.timestamp,  # type: ignore[attr-defined]  # the kind test says which message
+        msg.robot,  # type: ignore[attr-defined]  # the kind test says which message
     )
 
 
 class Network:
     """The in-queue, the out-queue and the counters of one VM."""
 
-    def __init__(self, vm: _Vm) -> None:
+    def __init__(self, vm: LibraryHost) -> None:
         self.vm = vm
         self.stats: collections.Counter[str] = collections.Counter()
         self.inbox = Inbox(self.stats)
@@ -110,6 +111,7 @@ class Network:
         on_put, on_query, deliver = stigmergies.on_put, stigmergies.on_query, vm.neighbors.deliver
         shared = _shared
         received = 0
+        tables: bool | None  # whether the message holds tables; None: it cannot be shared
         try:
             for sender, payload in self.inbox.drain():
                 hit = shared.get(payload)
@@ -117,7 +119,7 @@ class Network:
                     msg, tables = hit
                     # Stigmergy copies a shared value only if it keeps it (it usually has
                     # that version already); a listener always gets its own.
-                    if tables and (msg.type == 0 or msg.key.__class__ is Table):  # type: ignore[attr-defined]
+                    if tables and (msg.type == 0 or msg.key.__class__ is Table):  # type: ignore[attr-defined]  # the kind test says which message
                         msg = _private(msg)
                         tables = False
                 else:
@@ -137,17 +139,17 @@ class Network:
                 # MsgType is an IntEnum: compare plain ints, most frequent kinds first.
                 kind = msg.type
                 if kind == 3:  # VSTIG_QUERY
-                    on_query(msg, payload, tables)
+                    on_query(msg, payload, tables)  # type: ignore[arg-type]  # by its kind
                 elif kind == 2:  # VSTIG_PUT
-                    on_put(msg, tables)
+                    on_put(msg, tables)  # type: ignore[arg-type]  # by its kind
                 elif kind == 0:  # BROADCAST
-                    deliver(msg.topic, msg.value, sender)  # type: ignore[attr-defined]
+                    deliver(msg.topic, msg.value, sender)  # type: ignore[attr-defined]  # the kind test says which message
                 elif kind == 1:  # SWARM_LIST
-                    swarms.on_list(sender, msg.ids)  # type: ignore[attr-defined]
+                    swarms.on_list(sender, msg.ids)  # type: ignore[attr-defined]  # the kind test says which message
                 elif kind == 4:  # SWARM_JOIN
-                    swarms.on_join(sender, msg.swarm)  # type: ignore[attr-defined]
+                    swarms.on_join(sender, msg.swarm)  # type: ignore[attr-defined]  # the kind test says which message
                 else:
-                    swarms.on_leave(sender, msg.swarm)  # type: ignore[attr-defined]
+                    swarms.on_leave(sender, msg.swarm)  # type: ignore[attr-defined]  # the kind test says which message
         finally:
             # Counted even when a listener's error ends the step early.
             self.stats["received"] += received

@@ -83,10 +83,10 @@ def mod(a: Any, b: Any) -> Any:
     _numbers(a, b, "take the modulo of")
     fa, fb = f32(a), f32(b)
     try:
-        r = math.fmod(fa, fb)
+        rem = math.fmod(fa, fb)
     except ValueError:  # x % 0.0 and inf % x are NaN in C
         return fa if fa != fa else DEFAULT_NAN
-    return f32(r + fb) if r < 0 else r
+    return f32(rem + fb) if rem < 0 else rem
 
 
 def power(a: Any, b: Any) -> float:

@@ -169,7 +169,7 @@ class Outbox:
             if payload is None:
                 break
             cost = len(payload) + overhead
-            if budget_bytes is not None and cost > room:  # type: ignore[operator]
+            if budget_bytes is not None and cost > room:  # type: ignore[operator]  # room is an int then
                 if cost <= budget_bytes:
                     break
                 self._pop()

@@ -45,6 +45,14 @@ class Instruction:
     arg: int | float | None
     next: int
 
+    @property
+    def int_arg(self) -> int:
+        """The argument of an instruction that takes an int (every one but `pushf`)."""
+        arg = self.arg
+        if not isinstance(arg, int):
+            raise TypeError(f"{self.op.mnemonic} at {self.addr} has no int argument")
+        return arg
+
 
 @dataclass
 class Program:
@@ -114,9 +122,10 @@ class Program:
         if op is Op.PUSHF:
             arg: int | float = _PUSHF.unpack_from(bc, pc + 1)[0]
         else:
-            arg = _ARG.unpack_from(bc, pc + 1)[0]
+            word: int = _ARG.unpack_from(bc, pc + 1)[0]
             if op is Op.PUSHI:
-                arg = arg - 0x100000000 if arg & 0x80000000 else arg
+                word = word - 0x100000000 if word & 0x80000000 else word
+            arg = word
         return Instruction(pc, op, arg, pc + 5)
 
 

@@ -64,7 +64,7 @@ class Table(dict):
     # Tables are compared by identity, as in Buzz.
     __eq__ = object.__eq__
     __ne__ = object.__ne__
-    __hash__ = object.__hash__
+    __hash__ = object.__hash__  # type: ignore[assignment]  # dict sets None; tables hash by id
 
 
 class Closure:

@@ -7,7 +7,7 @@
     vm.call("init")
     vm.call("step")
 
-Bytecode functions run as Python functions made by bvm/translate.py, falling back to
+Bytecode functions run as Python functions made by the translator (bvm/translate/), falling back to
 bvm/interp.py for whatever the translator declines. Both call closures the same way,
 `c.fn(c, *args)`, so they mix freely.
 """
@@ -17,15 +17,20 @@ from __future__ import annotations
 import inspect
 import logging
 import sys
-from collections.abc import Callable, Iterable
-from typing import Any, Literal
+from collections.abc import Callable, Iterable, Mapping
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, Literal
 
 from bvm import translate as _translate
 from bvm.budget import Budget, BudgetTimeout
 from bvm.errors import BuzzBudgetExceeded, BuzzError
-from bvm.interp import Halt, interpret
+from bvm.interp import Halt, interpret, recorded_pcs
 from bvm.program import Program
+from bvm.translate import DEFAULT_OPTIONS, TranslateOptions
 from bvm.values import Closure, to_buzz, to_python, type_name
+
+if TYPE_CHECKING:
+    from bvm.stdlib.rng import MersenneTwister
 
 _log = logging.getLogger("bvm")
 
@@ -100,7 +105,12 @@ class Entry:
             else:
                 try:
                     f = _translate.translate(
-                        self.vm, self.addr, self.n_actrec, len(args), speculate=spec
+                        self.vm,
+                        self.addr,
+                        self.n_actrec,
+                        len(args),
+                        speculate=spec,
+                        options=self.vm.translate_options,
                     )
                 except _translate.NotStructured as e:
                     _log.debug("function @%d (specialized): not translated: %s", self.addr, e)
@@ -115,7 +125,9 @@ class Entry:
             f = self.general_by_arity[nargs] = self._interpreted()
         if f is None:
             try:
-                f = _translate.translate(self.vm, self.addr, self.n_actrec, nargs)
+                f = _translate.translate(
+                    self.vm, self.addr, self.n_actrec, nargs, options=self.vm.translate_options
+                )
             except _translate.NotStructured as e:
                 _log.info("function @%d runs on the interpreter: %s", self.addr, e)
                 f = self._interpreted()
@@ -136,7 +148,16 @@ class Entry:
 
 
 class VM:
-    """A Buzz virtual machine for one robot."""
+    """A Buzz virtual machine for one robot.
+
+    `globals` is the public fast global namespace: a plain dict from Buzz global name to
+    Buzz value (see bvm.values), which a host may read and write directly once a step
+    (one dict operation, against `vm[name]`'s conversions). Writes must be Buzz values;
+    names starting with `_` belong to the translator's helpers and must not be touched.
+    """
+
+    #: The generator behind `math.rng`, made by the library's installation at `load`.
+    rng: MersenneTwister
 
     def __init__(
         self,
@@ -146,13 +167,16 @@ class VM:
         max_ticks: int | None = None,
         max_seconds: float | None = None,
         translate: bool = True,
+        translate_options: TranslateOptions = DEFAULT_OPTIONS,
     ) -> None:
         """`max_ticks` bounds the loop iterations of one entry (execute or call), the same
         on every run; `max_seconds` bounds its wall time, whatever the script does.
         Exceeding either is a BuzzBudgetExceeded.
-        `translate=False` runs everything on the reference interpreter (for testing)."""
+        `translate=False` runs everything on the reference interpreter (for testing);
+        `translate_options` tunes the translator (its optimizations, its code cache)."""
         self.robot_id = robot_id & 0xFFFF
         self.translate = translate
+        self.translate_options = translate_options
         self.rng_seed = rng_seed
         # Buzz globals and the helpers of translated code share one dict: it is the
         # generated functions' module globals. Buzz names never start with "_".
@@ -258,7 +282,12 @@ class VM:
                 # its bound names must not be bound again to other values.
                 try:
                     self._toplevel = _translate.translate(
-                        self, self._global_start, 0, 0, toplevel=True
+                        self,
+                        self._global_start,
+                        0,
+                        0,
+                        toplevel=True,
+                        options=self.translate_options,
                     )
                 except _translate.NotStructured as e:
                     _log.info("global code runs on the interpreter: %s", e)
@@ -431,6 +460,31 @@ class VM:
 
     # ------------------------------------------------------------ swarm host interface
 
+    @property
+    def counters(self) -> Mapping[str, int]:
+        """The network counters, read-only: `received`, `sent`, `decode_errors`,
+        `inbox_overflow`, `outbox_overflow`, `oversize_dropped`, ... and those the host
+        bumped with `count`; a name never counted reads 0. Reset by `load`."""
+        return MappingProxyType(self.net.stats)
+
+    def count(self, name: str, n: int = 1) -> None:
+        """Add `n` to the counter `name`, for what the host sees of this robot's traffic
+        before it reaches the VM (e.g. `bundle_errors`, a bundle that did not unpack)."""
+        self.net.stats[name] += n
+
+    @property
+    def peer_count(self) -> int:
+        """How many other robots this VM holds swarm memberships of (from their lists)."""
+        return len(self.swarms.peers)
+
+    def set_neighbor_columns(
+        self, ids: list[int], distances: list[float], azimuths: list[float]
+    ) -> None:
+        """The fast `set_neighbors` for a host that computes a whole swarm at once: the
+        same neighbours as columns, every distance and azimuth already a binary32 value,
+        every id valid (0..65535) and every elevation 0. Nothing is checked."""
+        self.neighbors.set_columns(ids, distances, azimuths)
+
     def set_neighbors(self, entries: Iterable[tuple[int, float, float, float]]) -> None:
         """Replace this step's neighbors: (robot id, distance, azimuth, elevation) each,
         distance in metres, angles in radians (azimuth from north, positive toward east)."""
@@ -442,7 +496,7 @@ class VM:
 
     def process_inbox(self) -> None:
         """Apply the received messages (listeners run now). A payload that does not decode
-        is counted in `vm.net.stats` and skipped; a listener's error is a BuzzError."""
+        is counted in `counters` and skipped; a listener's error is a BuzzError."""
         self._require_program()
         if self.state == "done":
             self.state = "ready"
@@ -495,24 +549,25 @@ class VM:
             self.state = "done"
             return None
         except BudgetTimeout as e:
-            err = BuzzBudgetExceeded(self.budget.timeout_message())
-            raise self._fail(err, e.__traceback__) from None
+            err: BuzzError = BuzzBudgetExceeded(self.budget.timeout_message())
+            raise self._fail(err, e) from None
         except BuzzError as e:
-            raise self._fail(e, e.__traceback__) from None
+            raise self._fail(e, e) from None
         except RecursionError as e:
             err = BuzzError("stack overflow: function calls nested too deeply")
-            raise self._fail(err, e.__traceback__) from None
+            raise self._fail(err, e) from None
         except MemoryError as e:
-            raise self._fail(BuzzError("out of memory"), e.__traceback__) from None
+            raise self._fail(BuzzError("out of memory"), e) from None
         except Exception as e:
-            raise self._fail(_unexpected(e), e.__traceback__) from None
+            raise self._fail(_unexpected(e), e) from None
         finally:
             self.budget.stop()
             self._depth = 0
 
-    def _fail(self, err: BuzzError, tb: Any = None) -> BuzzError:
-        if err.offset is None and tb is not None:
-            err.offset = _locate(tb)
+    def _fail(self, err: BuzzError, cause: BaseException | None = None) -> BuzzError:
+        """Enter the error state with `err`, located where `cause` was raised."""
+        if err.offset is None and cause is not None:
+            err.offset = _locate(cause)
         if err.offset is not None and self.program is not None:
             err.location = self.program.location(err.offset)
         self.state = "error"
@@ -541,13 +596,16 @@ def _unexpected(e: Exception) -> BuzzError:
     return BuzzError(f"host function error: {type(e).__name__}: {e}")
 
 
-def _locate(tb: Any) -> int | None:
-    """Bytecode offset of the innermost Buzz frame (interpreted or translated) in a traceback."""
+def _locate(exc: BaseException) -> int | None:
+    """Bytecode offset of the innermost Buzz frame (interpreted or translated) that `exc`
+    was raised through."""
     offset = None
+    pcs = recorded_pcs(exc)
+    tb = exc.__traceback__
     while tb is not None:
         code = tb.tb_frame.f_code
         if code is _INTERP_CODE:
-            offset = tb.tb_frame.f_locals.get("oldpc", offset)
+            offset = pcs.get(tb, offset)
         else:
             lines = _translate.LINE_MAPS.get(code)
             if lines is not None and tb.tb_lineno < len(lines):

@@ -165,7 +165,7 @@ class Harness:
         for rid in self.ids:
             vm = self.vms[rid]
             self._guard(rid, vm.process_inbox)
-            vm.neighbors.set_columns(*self.neighbors_of(rid))
+            vm.set_neighbor_columns(*self.neighbors_of(rid))
             self._guard(rid, lambda vm=vm: vm.call("step"))
             if rid not in self.errors:
                 outgoing[rid] = vm.drain_outbox(self.budget_bytes, self.overhead)

@@ -1,4 +1,4 @@
-"""Differential fuzzing: the translator (bvm/translate.py) against the reference interpreter.
+"""Differential fuzzing: the translator (bvm/translate/) against the reference interpreter.
 
 Hypothesis generates random valid Buzz programs (tests/fuzz/buzzgen.py, the grammar of
 docs/language.md#grammar);

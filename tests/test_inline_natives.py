@@ -1,6 +1,6 @@
 """Library natives with an inline fast path give exactly what the native gives.
 
-The translated VM uses the inline templates (`impl.inline`); the interpreter always calls
+The translated VM uses the inline templates (`@inline`, bvm/inline.py); the interpreter always calls
 the native. Both run the same calls on random arguments, edge cases included.
 """
 

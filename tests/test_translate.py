@@ -12,14 +12,22 @@ import re
 import pytest
 
 import bvm
-from bvm import translate as translator
+from bvm.translate import CodeCache, TranslateOptions
 from bvm.values import format_value
 
 
-def run(program: bvm.Program, translate: bool, call: str | None = None, *args: object) -> tuple:
+def run(
+    program: bvm.Program,
+    translate: bool,
+    call: str | None = None,
+    *args: object,
+    options: TranslateOptions | None = None,
+) -> tuple:
     """(log lines, result or error) of running `program` one way."""
     lines: list[str] = []
-    vm = bvm.VM(translate=translate, max_ticks=100_000)
+    vm = bvm.VM(
+        translate=translate, max_ticks=100_000, translate_options=options or TranslateOptions()
+    )
     try:
         vm.load(program)
         vm.register("log", lambda *a: lines.append("".join(map(format_value, a))))
@@ -329,7 +337,7 @@ def test_error_inside_a_direct_self_call_is_located() -> None:
     assert outcome[0] == "error"
 
 
-def test_self_calls_count_the_same_budget(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_self_calls_count_the_same_budget() -> None:
     # Loops inside the recursion: the budget runs out at the same point, with the same
     # location, with and without direct self-calls.
     # The second program's frames return through `_Deopt` once the global changes.
@@ -350,19 +358,17 @@ def test_self_calls_count_the_same_budget(monkeypatch: pytest.MonkeyPatch) -> No
             for ticks in (100, 5000, 100_000):
                 outcomes = []
                 for on in (True, False):
-                    with monkeypatch.context() as m:
-                        m.setattr(translator, "SELF_CALLS", on)
-                        vm = bvm.VM(max_ticks=ticks)
-                        vm.load(program)
-                        vm.execute()
-                        try:
-                            outcomes.append(("ok", vm.call("f", n), vm.budget.used))
-                        except bvm.BuzzError as e:
-                            outcomes.append(("error", e.message, e.offset, vm.budget.used))
+                    vm = bvm.VM(max_ticks=ticks, translate_options=TranslateOptions(self_calls=on))
+                    vm.load(program)
+                    vm.execute()
+                    try:
+                        outcomes.append(("ok", vm.call("f", n), vm.budget.used))
+                    except bvm.BuzzError as e:
+                        outcomes.append(("error", e.message, e.offset, vm.budget.used))
                 assert outcomes[0] == outcomes[1]
 
 
-def test_self_calls_keep_the_recursion_depth(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_self_calls_keep_the_recursion_depth() -> None:
     # One Python frame per Buzz call either way: the deepest recursion that works is the
     # same, and deeper is the same clean error.
     source = "function d(n) {\n  if (n < 1) return 0\n  return d(n - 1) + 1\n}\n"
@@ -370,28 +376,24 @@ def test_self_calls_keep_the_recursion_depth(monkeypatch: pytest.MonkeyPatch) ->
     assert self_called(source, "d", 3)
 
     def deepest(on: bool) -> int:
-        with monkeypatch.context() as m:
-            m.setattr(translator, "SELF_CALLS", on)
-            lo, hi = 1, 20_000
-            while lo < hi:
-                mid = (lo + hi + 1) // 2
-                vm = bvm.VM()
-                vm.load(program)
-                vm.execute()
-                try:
-                    vm.call("d", mid)
-                    lo = mid
-                except bvm.BuzzError as e:
-                    assert "stack overflow" in e.message
-                    hi = mid - 1
-            return lo
+        lo, hi = 1, 20_000
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            vm = bvm.VM(translate_options=TranslateOptions(self_calls=on))
+            vm.load(program)
+            vm.execute()
+            try:
+                vm.call("d", mid)
+                lo = mid
+            except bvm.BuzzError as e:
+                assert "stack overflow" in e.message
+                hi = mid - 1
+        return lo
 
     assert 5000 < deepest(True) == deepest(False) < 20_000
     errors = []
     for on in (True, False):
-        with monkeypatch.context() as m:
-            m.setattr(translator, "SELF_CALLS", on)
-            errors.append(run(program, True, "d", 20_000))
+        errors.append(run(program, True, "d", 20_000, options=TranslateOptions(self_calls=on)))
     assert errors[0] == errors[1] and errors[0][1][0] == "error"
 
 
@@ -407,7 +409,7 @@ def test_self_call_with_captured_variables_and_methods() -> None:
     assert both(source, "run")[1] == ("ok", 18 + 8)
 
 
-def test_chunked_loops_count_the_same_budget(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_chunked_loops_count_the_same_budget() -> None:
     # Loops count their iterations with a `for` over one chunk's counts; the budget must
     # be the same as with the counter they replace: used on success, and on exhaustion
     # the same error at the same place. Around the chunk size (1000 jumps), with early
@@ -422,14 +424,12 @@ def test_chunked_loops_count_the_same_budget(monkeypatch: pytest.MonkeyPatch) ->
     program = bvm.compile_source(source, "t.bzz")
     vms = []
     for chunked in (True, False):  # translated on their first call, either way
-        with monkeypatch.context() as m:
-            m.setattr(translator, "CHUNKED_LOOPS", chunked)
-            vm = bvm.VM()
-            vm.load(program)
-            vm.execute()
-            vm.call("w", 0, 0)
-            vm.call("f", 0, 0)
-            vms.append(vm)
+        vm = bvm.VM(translate_options=TranslateOptions(chunked_loops=chunked))
+        vm.load(program)
+        vm.execute()
+        vm.call("w", 0, 0)
+        vm.call("f", 0, 0)
+        vms.append(vm)
     ref = bvm.VM(translate=False)
     ref.load(program)
     ref.execute()
@@ -509,19 +509,15 @@ def test_running_the_global_code_again_keeps_its_bound_names() -> None:
     assert vm["a"] == 0  # and isint now
 
 
-def test_error_locations_survive_a_cleared_code_cache(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_error_locations_survive_a_cleared_code_cache() -> None:
     """A translation compiled again after the cache was cleared keeps its line map when
     the VMs holding the earlier copy are gone."""
-    import gc
-
-    from bvm import translate
-
-    monkeypatch.setattr(translate, "_CODE_MAX", 2)
+    options = TranslateOptions(cache=CodeCache(max_size=2))
     src = "function g(x) {\n  var y = x + 1\n  return y.foo\n}\n"
     other = "function h(x) {\n  return x * 3\n}\nfunction k(x) {\n  return x - 3\n}\n"
 
     def robot(source: str) -> bvm.VM:
-        vm = bvm.VM()
+        vm = bvm.VM(translate_options=options)
         vm.load(bvm.compile_source(source, "cache.bzz"))
         return vm
 

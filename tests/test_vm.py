@@ -140,6 +140,22 @@ def test_runtime_error_locations(
 
 
 @BOTH
+def test_error_in_nested_calls_is_located_in_the_innermost_buzz_frame(translate: bool) -> None:
+    # Buzz -> host -> Buzz -> Buzz: each frame on the way out must not move the location
+    # the innermost one gave (the interpreter records it as the exception leaves a frame).
+    src = (
+        "function inner(t) {\n  return t.x.y\n}\n"
+        "function middle(v) {\n  var a = 1\n  return inner({})\n}\n"
+        "function outer() {\n  var t = {.a = 1}\n  foreach(t, function(k, v) { middle(v) })\n}\n"
+    )
+    vm, _ = make_vm(src, translate)
+    with pytest.raises(bvm.BuzzError, match="expected table, got nil") as info:
+        vm.call("outer")
+    assert info.value.location is not None
+    assert info.value.location[1:] == (3, 0), str(info.value)
+
+
+@BOTH
 def test_missing_argument_reads_fail_and_extra_arguments_are_ignored(translate: bool) -> None:
     src = "function f(a, b) { return b }\nfunction g(a) { return a }\n"
     vm, _ = make_vm(src, translate)
@@ -387,3 +403,44 @@ print("traced", len(events))
 """
     out = subprocess.run([_sys.executable, "-c", child], capture_output=True, text=True, timeout=60)
     assert out.stdout.startswith("traced "), out.stderr
+
+
+# ---------------------------------------------------------------- the host API
+
+
+def test_counters_are_read_only_and_hosts_count_their_own() -> None:
+    vm, _ = make_vm("x = 1")
+    vm.receive(2, b"\xff")  # not a message
+    vm.process_inbox()
+    assert vm.counters["decode_errors"] == 1
+    assert vm.counters["bundle_errors"] == 0  # never counted
+    vm.count("bundle_errors")
+    vm.count("bundle_errors", 2)
+    assert vm.counters["bundle_errors"] == 3
+    with pytest.raises(TypeError):
+        vm.counters["sent"] = 5  # type: ignore[index]  # the point: the mapping is read-only
+
+
+def test_neighbor_columns_are_set_neighbors_without_checks() -> None:
+    src = (
+        "function n() { return neighbors.count() }\n"
+        "function d(i) { return neighbors.get(i).distance }\n"
+    )
+    slow, _ = make_vm(src)
+    fast, _ = make_vm(src)
+    slow.set_neighbors([(2, 1.5, 0.25, 0.0), (7, 3.0, -1.0, 0.0)])
+    fast.set_neighbor_columns([2, 7], [1.5, 3.0], [0.25, -1.0])
+    for vm in (slow, fast):
+        assert vm.call("n") == 2
+        assert vm.call("d", 7) == 3.0
+
+
+def test_peer_count_is_the_robots_heard_in_swarm_lists() -> None:
+    from bvm import wire
+
+    vm, _ = make_vm("x = 1")
+    assert vm.peer_count == 0
+    for sender in (3, 4):
+        vm.receive(sender, wire.encode(wire.SwarmList((1,))))
+    vm.process_inbox()
+    assert vm.peer_count == 2

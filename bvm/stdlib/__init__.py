@@ -10,22 +10,26 @@ handed out in registration order and show up when a closure is printed (`[c-clos
 
 so the host's first own native (bzzrun's `log`) gets id 65.
 
-The VM interface used: `vm.new_native(impl, arity, name)`, `vm.call_closure(c, *args)`,
-`vm.globals`, `vm.robot_id`, `vm.rng_seed`, and the swarm primitives' state objects
-`vm.neighbors`, `vm.stigmergies`, `vm.swarms` (bvm/stdlib/neighbors.py, stigmergy.py,
-swarm.py); `install` sets `vm.rng` (the `MersenneTwister` behind `math.rng`).
+The VM interface used is `bvm.host.LibraryHost`: `vm.new_native(impl, arity, name)`,
+`vm.call_closure(c, *args)`, `vm.globals`, `vm.robot_id`, `vm.rng_seed`, and the swarm
+primitives' state objects `vm.neighbors`, `vm.stigmergies`, `vm.swarms`
+(bvm/stdlib/neighbors.py, stigmergy.py, swarm.py); `install` sets `vm.rng` (the
+`MersenneTwister` behind `math.rng`).
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 from bvm.stdlib import base, iolib, mathlib, stringlib
+
+if TYPE_CHECKING:
+    from bvm.host import LibraryHost
 
 __all__ = ["install"]
 
 
-def install(vm: Any) -> None:
+def install(vm: LibraryHost) -> None:
     """Register the standard library into `vm.globals`, in the reference order (see above)."""
     vm.neighbors.register()  # get filter kin nonkin foreach map reduce count
     # broadcast listen ignore, ids 0-10

@@ -14,12 +14,14 @@ Deliberate differences from the reference (see docs/compat.md):
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bvm.errors import BuzzError
+from bvm.inline import inline
 from bvm.values import Closure, Table, Userdata, f2i, f32, type_name
 
-_Vm = Any  # the VM: new_native, call_closure, globals (see bvm/stdlib/__init__.py)
+if TYPE_CHECKING:
+    from bvm.host import LibraryHost
 
 
 def expected(what: str, x: Any) -> BuzzError:
@@ -97,15 +99,13 @@ def b_clone(_self: Any, x: Any) -> Any:
     return clone(x)
 
 
+# What the translator may emit instead of a call, for arguments of these types.
+@inline("{len}({0})", "table")
 def b_size(_self: Any, t: Any) -> int:
     """size(t): the number of entries of a table."""
     if t.__class__ is not Table:
         raise expected("table", t)
     return len(t)
-
-
-# What the translator may emit instead of a call, for arguments of these types.
-b_size.inline = ("_len({0})", ("table",))  # type: ignore[attr-defined]
 
 
 def b_isnil(_self: Any, x: Any) -> int:
@@ -154,7 +154,7 @@ def _table_and_closure(t: Any, f: Any) -> None:
         raise expected("closure", f)
 
 
-def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
+def _make_iterators(vm: LibraryHost) -> tuple[Any, Any, Any, Any]:
     """foreach, map, reduce and filter bound to `vm` (they call back into Buzz code)."""
     # These run a Buzz closure per entry, so they call `f.fn` directly (one Python call per
     # entry) and leave wrong argument counts and the like to `vm.call_failed`.
@@ -209,7 +209,7 @@ def _make_iterators(vm: _Vm) -> tuple[Any, Any, Any, Any]:
     return b_foreach, b_map, b_reduce, b_filter
 
 
-def register(vm: _Vm) -> None:
+def register(vm: LibraryHost) -> None:
     """Register the base globals, in the reference order (C-function ids 11-26)."""
     b_foreach, b_map, b_reduce, b_filter = _make_iterators(vm)
     g = vm.globals

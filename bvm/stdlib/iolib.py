@@ -19,12 +19,14 @@ from __future__ import annotations
 import errno as _errno
 import io
 import os
-from typing import Any, BinaryIO
+from typing import IO, TYPE_CHECKING, Any
 
 from bvm.errors import BuzzError
 from bvm.values import Closure, Table, Userdata, format_value, type_name
 
-_Vm = Any
+if TYPE_CHECKING:
+    from bvm.host import LibraryHost
+
 _strerror = os.strerror
 
 
@@ -33,7 +35,7 @@ class BuzzFile:
 
     __slots__ = ("fp", "name")
 
-    def __init__(self, fp: BinaryIO, name: str) -> None:
+    def __init__(self, fp: IO[bytes], name: str) -> None:
         self.fp = fp
         self.name = name
 
@@ -61,7 +63,7 @@ def parse_mode(mode: str) -> tuple[int, str] | None:
     return flags, kind + ("+b" if plus else "b")
 
 
-def _make_io(vm: _Vm, io_table: Table) -> tuple[Any, ...]:
+def _make_io(vm: LibraryHost, io_table: Table) -> tuple[Any, ...]:
     """The five io natives, reporting errors into `io_table`."""
     call = vm.call_closure
 
@@ -183,7 +185,7 @@ def _make_io(vm: _Vm, io_table: Table) -> tuple[Any, ...]:
     return fopen, fclose, fsize, fforeach, fwrite
 
 
-def register(vm: _Vm) -> None:
+def register(vm: LibraryHost) -> None:
     """Register the `io` table (C-function ids 54-58)."""
     new = vm.new_native
     t = Table()

@@ -23,14 +23,15 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bvm import ops
 from bvm.errors import BuzzError
 from bvm.stdlib.rng import MersenneTwister
 from bvm.values import INT_MAX, INT_MIN, Table, f32, type_name
 
-_Vm = Any
+if TYPE_CHECKING:
+    from bvm.host import LibraryHost
 
 _INF = math.inf
 _NAN = math.nan
@@ -286,7 +287,7 @@ def gaussian_from(next_u32: Any, mean: float, sd: float) -> float:
     return f32(mean + sd * (x1 * _sqrt(-2.0 * _log(s) / s)))
 
 
-def _make_rng(vm: _Vm) -> tuple[Any, Any, Any, Any]:
+def _make_rng(vm: LibraryHost) -> tuple[Any, Any, Any, Any]:
     """setseed, uniform, gaussian and exponential drawing from `vm.rng`."""
 
     def r_setseed(_self: Any, seed: Any) -> None:
@@ -328,7 +329,7 @@ def _make_rng(vm: _Vm) -> tuple[Any, Any, Any, Any]:
     return r_setseed, r_uniform, r_gaussian, r_exponential
 
 
-def register(vm: _Vm) -> None:
+def register(vm: LibraryHost) -> None:
     """Create `vm.rng` and register the `math` table (C-function ids 33-53)."""
     seed = vm.rng_seed
     if seed is None:
@@ -336,6 +337,7 @@ def register(vm: _Vm) -> None:
     vm.rng = MersenneTwister(seed)
     new = vm.new_native
     t = Table()
+    arity: int | None  # a fixed argument count, or None for natives that check their own
     for name, impl, arity in (
         ("abs", m_abs, 1),
         ("floor", m_floor, 1),

@@ -17,12 +17,13 @@ use (so they get the ids the reference gives the first ones) and binds copies to
 from __future__ import annotations
 
 from array import array
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bvm.stdlib.base import expected
 from bvm.values import Closure, Table
 
-_Vm = Any
+if TYPE_CHECKING:
+    from bvm.host import LibraryHost
 
 POSES = "poses"
 
@@ -30,7 +31,7 @@ POSES = "poses"
 class Neighbors:
     """The neighbors state of one VM: topic listeners and the derived-table methods."""
 
-    def __init__(self, vm: _Vm) -> None:
+    def __init__(self, vm: LibraryHost) -> None:
         self.vm = vm
         self.listeners: dict[str, Closure] = {}
         self.table = Table()  # the global `neighbors`

@@ -20,12 +20,15 @@ bvm/stdlib/swarm.py for why).
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bvm import wire
 from bvm.errors import BuzzError
 from bvm.stdlib.base import expected
 from bvm.values import Closure, Table, copy_tree, f2i, type_name
+
+if TYPE_CHECKING:
+    from bvm.host import LibraryHost
 
 _log = logging.getLogger("bvm.net")
 
@@ -34,8 +37,6 @@ QUERY_QUIET = 10
 
 #: Forwarded queries remembered at most (oldest forgotten first).
 MAX_REMEMBERED = 1024
-
-_Vm = Any
 
 
 class Element:
@@ -105,7 +106,7 @@ class VStig:
 class Stigmergies:
     """The virtual stigmergies of one VM and the gossip rules that keep them converging."""
 
-    def __init__(self, vm: _Vm) -> None:
+    def __init__(self, vm: LibraryHost) -> None:
         self.vm = vm
         self.stores: dict[int, VStig] = {}
         self._methods: list[tuple[str, Closure]] | None = None

@@ -17,12 +17,14 @@ import math
 import re
 from decimal import Decimal
 from fractions import Fraction
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bvm.errors import BuzzError
+from bvm.inline import inline
 from bvm.values import MAX_STRING_BYTES, Table, f32, format_value, type_name
 
-_Vm = Any
+if TYPE_CHECKING:
+    from bvm.host import LibraryHost
 
 _LONG_MAX = 0x7FFFFFFFFFFFFFFF
 
@@ -147,6 +149,8 @@ def to_string(x: Any) -> str:
 # ---------------------------------------------------------------- natives
 
 
+# What the translator may emit instead of a call, for arguments of these types.
+@inline("{len}({0})", "str")
 def s_length(_self: Any, s: Any) -> int:
     """string.length(s): the byte length of s."""
     if s.__class__ is not str:
@@ -154,10 +158,8 @@ def s_length(_self: Any, s: Any) -> int:
     return len(s)
 
 
-# What the translator may emit instead of a call, for arguments of these types.
-s_length.inline = ("_len({0})", ("str",))  # type: ignore[attr-defined]
-
-
+# The common case inline; anything else (nil results, clamping, errors) calls s_sub.
+@inline("{0}[{1}:{2}] if 0 <= {1} < {len}({0}) and {1} <= {2} else {call}", "str", "int", "int")
 def s_sub(_self: Any, *args: Any) -> str | None:
     """string.sub(s, n [, m]): bytes [n, m) of s; nil if n >= length or m < n.
 
@@ -186,13 +188,11 @@ def s_sub(_self: Any, *args: Any) -> str | None:
     return s[n:m]
 
 
-# The common case inline; anything else (nil results, clamping, errors) calls s_sub.
-s_sub.inline = (  # type: ignore[attr-defined]
-    "{0}[{1}:{2}] if 0 <= {1} < _len({0}) and {1} <= {2} else {call}",
-    ("str", "int", "int"),
+@inline(
+    f"{{0}} + {{1}} if {{len}}({{0}}) + {{len}}({{1}}) <= {MAX_STRING_BYTES} else {{call}}",
+    "str",
+    "str",
 )
-
-
 def s_concat(_self: Any, *args: Any) -> str:
     """string.concat(s1, s2, ...): the concatenation of two or more strings."""
     if len(args) < 2:
@@ -211,18 +211,10 @@ def s_concat(_self: Any, *args: Any) -> str:
     return "".join(args)
 
 
-s_concat.inline = (  # type: ignore[attr-defined]
-    f"{{0}} + {{1}} if _len({{0}}) + _len({{1}}) <= {MAX_STRING_BYTES} else {{call}}",
-    ("str", "str"),
-)
-
-
+@inline("{str}({0})", "int")
 def s_tostring(_self: Any, x: Any) -> str:
     """string.tostring(x): see `to_string`."""
     return to_string(x)
-
-
-s_tostring.inline = ("_str({0})", ("int",))  # type: ignore[attr-defined]
 
 
 def s_toint(_self: Any, s: Any) -> int | None:
@@ -239,7 +231,7 @@ def s_tofloat(_self: Any, s: Any) -> float | None:
     return strtof(s)
 
 
-def register(vm: _Vm) -> None:
+def register(vm: LibraryHost) -> None:
     """Register the `string` table (C-function ids 59-64)."""
     new = vm.new_native
     t = Table()

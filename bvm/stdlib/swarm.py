@@ -13,13 +13,14 @@ argument (the reference only with two).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bvm.errors import BuzzError
 from bvm.stdlib.base import expected
 from bvm.values import Closure, Table
 
-_Vm = Any
+if TYPE_CHECKING:
+    from bvm.host import LibraryHost
 
 #: Steps without news from a robot after which its swarm memberships are forgotten.
 MAX_AGE = 50
@@ -38,7 +39,7 @@ def _swarm_id(x: Any) -> int:
 class Swarms:
     """Swarm membership of one VM, its knowledge of other robots', and the exec stack."""
 
-    def __init__(self, vm: _Vm) -> None:
+    def __init__(self, vm: LibraryHost) -> None:
         self.vm = vm
         self.flags: dict[int, int] = {}
         # robot -> (its swarm ids, the step of its last news), oldest news first
@@ -124,7 +125,7 @@ class Swarms:
 
     def _flag(self, t: Any) -> tuple[int, int]:
         """The (id, flag) of a swarm table; an id never created is an error."""
-        sid = t["id"] if t.__class__ is Table else None
+        sid: Any = t["id"] if t.__class__ is Table else None
         flag = self.flags.get(sid) if sid.__class__ is int else None
         if flag is None:
             raise BuzzError(f"unknown swarm id: {sid}")

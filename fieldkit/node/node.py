@@ -136,7 +136,7 @@ class Node:
             "radio_frames_out": radio.get("frames_out", 0) + radio.get("datagrams_out", 0),
             "radio_bad_frames": radio.get("bad_frames", 0) + radio.get("bad_datagrams", 0),
             "bundle_errors": runtime.counters["bundle_errors"],
-            "decode_errors": runtime.vm.net.stats["decode_errors"],
+            "decode_errors": runtime.vm.counters["decode_errors"],
             "errors": [runtime.error] if runtime.error is not None else [],
             "final_state": runtime.state,
             "failsafe": runtime.supervisor.failsafe,

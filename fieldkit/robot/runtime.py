@@ -253,7 +253,7 @@ class RobotRuntime:
                 vm.process_inbox()
                 if neighbors is None:
                     neighbors = self.neighbor_columns(sensors)
-                vm.neighbors.set_columns(*neighbors)
+                vm.set_neighbor_columns(*neighbors)
                 self.api.before_step(sensors, None)
                 vm.call("step")
                 commands = self.api.after_step()

@@ -155,7 +155,7 @@ class ScriptAPI:
         self, sensors: Sensors, neighbors: list[tuple[int, float, float, float]] | None
     ) -> None:
         """Push this tick's sensor tables and neighbours into the VM (before `step()`);
-        neighbours None: the host has set them (`vm.neighbors.set_columns`)."""
+        neighbours None: the host has set them (`vm.set_neighbor_columns`)."""
         self.sensors = s = sensors
         if self.cur_goal is None:
             self.cur_goal = (s.lat, s.lon, s.alt)
@@ -204,7 +204,7 @@ class ScriptAPI:
         """The commands the script queued this tick (in order); updates `ROBOTS`."""
         out = self.commands
         self.commands = []
-        self._update_robots(len(self.vm.swarms.peers) + 1)
+        self._update_robots(self.vm.peer_count + 1)
         self.vm.globals["ROBOTS"] = self.robots
         return out
 

@@ -1,0 +1,142 @@
+"""Build and cache: a bytecode function's translation as a callable Python function.
+
+The candidates code generation offers (best first, see selfcall.candidates) are turned
+into module source with their entry guards and prologues, compiled through the code
+cache, and executed in the VM's namespace; each resulting code object's line map goes
+into LINE_MAPS so errors can be located.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from bvm.program import Instruction
+from bvm.translate.cache import LINE_MAPS
+from bvm.translate.codegen import Codegen, generate
+from bvm.translate.controlflow import NotStructured, discover
+from bvm.translate.host import TranslatorHost
+from bvm.translate.lattice import ANY, GUARD_CLASS
+from bvm.translate.options import DEFAULT_OPTIONS, TranslateOptions
+from bvm.translate.selfcall import DEOPT_ONLY, SelfCall, candidates
+
+
+def translate(
+    vm: TranslatorHost,
+    addr: int,
+    n_actrec: int,
+    nargs: int,
+    *,
+    toplevel: bool = False,
+    speculate: tuple[str, ...] | None = None,
+    options: TranslateOptions = DEFAULT_OPTIONS,
+) -> Callable[..., Any]:
+    """Python function for the bytecode function at `addr`, or raise NotStructured.
+
+    For a function: called as `f(closure, *args)` with `n_actrec` captured slots and
+    exactly `nargs` arguments. With `speculate`, argument k is assumed to have type
+    `speculate[k]`; a call that breaks the assumption goes to the general translation.
+    At top level: `f()`.
+    """
+    if vm.program is None:
+        raise NotStructured("no program loaded")
+    instrs = discover(vm.program, addr)
+    if instrs[0].addr != addr:
+        # Hand-made code that jumps back before its entry: regions run from the lowest
+        # address, so only the interpreter can start in the middle.
+        raise NotStructured("entry is not the function's lowest address")
+    chunked = options.chunked_loops
+    if toplevel:
+        key = f"{addr}T"
+        gen = generate(vm, instrs, [], True, None, key, chunked)
+        return _build(vm, instrs, gen, None, 0, 0, None, options)
+    spec = speculate or (ANY,) * nargs
+    # What the translation depends on besides the bytecode: names derived from it are the
+    # same in every VM (see CodeCache).
+    key = f"{addr}_{n_actrec}_{nargs}{'S' if speculate else 'G'}{''.join(t[0] for t in spec)}"
+    slot_types = [ANY] * n_actrec + list(spec)
+
+    def emit(sc: SelfCall | None) -> Codegen:
+        return generate(vm, instrs, slot_types, False, sc, key, chunked)
+
+    failure = NotStructured("no translation")
+    for gen, sc in candidates(emit, addr, n_actrec, spec, key, options.self_calls):
+        try:
+            return _build(vm, instrs, gen, sc, n_actrec, nargs, speculate, options)
+        except NotStructured as e:  # CPython refused it: try the next, simpler, candidate
+            failure = e
+    raise failure
+
+
+def _build(
+    vm: TranslatorHost,
+    instrs: list[Instruction],
+    gen: Codegen,
+    sc: SelfCall | None,
+    n_actrec: int,
+    nargs: int,
+    speculate: tuple[str, ...] | None,
+    options: TranslateOptions,
+) -> Callable[..., Any]:
+    """Compile a generated function (and its unguarded body, if it calls itself directly)."""
+    first = addr = instrs[0].addr
+    cache = options.cache
+    cache.make_room()
+    fname, bname = f"_f{gen.key}_{cache.generation}", f"_b{gen.key}_{cache.generation}"
+    source: list[str] = []
+    offsets = [first]  # line numbers start at 1; index 0 is unused
+
+    def define(head: str, prologue: list[str], deopt: bool) -> None:
+        if gen.global_names:
+            prologue = [f"global {', '.join(sorted(gen.global_names))}", *prologue]
+        source.append(head)
+        offsets.append(first)
+        for text in prologue:
+            source.append("    " + text)
+            offsets.append(first)
+        for indent, text, offset, flags in gen.lines:
+            if deopt or not flags & DEOPT_ONLY:
+                source.append("    " * indent + text)
+                offsets.append(offset)
+        if not gen.lines:
+            source.append("    return None")
+            offsets.append(first)
+
+    twice = False
+    if gen.toplevel:
+        define(f"def {fname}():", [], False)
+    else:
+        params = "".join(f", _l{n_actrec + k}" for k in range(nargs))
+        guards = [
+            f"_l{n_actrec + k}.__class__ is not {GUARD_CLASS[ty]}"
+            for k, ty in enumerate(speculate or ())
+            if ty in GUARD_CLASS
+        ]
+        unpack = []
+        if any(k < n_actrec for k in gen.used_locals):
+            unpack.append(f"{', '.join(f'_l{k}' for k in range(n_actrec))}, = _C.actrec")
+        prologue = list(unpack)
+        if guards:
+            general = f"_g{addr}_{n_actrec}_{nargs}"
+            gen.consts[general] = vm.entry(addr, n_actrec).call_general
+            prologue.insert(0, f"if {' or '.join(guards)}: return {general}(_C{params})")
+        define(f"def {fname}(_C{params}):", prologue, False)
+        # The unguarded body that direct self-calls enter: a copy, so that entering
+        # through the guard costs no extra call (the same function when nothing differs).
+        twice = sc is not None and (bool(guards) or sc.ret != ANY)
+        if twice:
+            define(f"def {bname}(_C{params}):", unpack, True)
+    text = "\n".join(source) + "\n"
+    code = cache.compiled(text, offsets, f"<buzz:{gen.program.path}@{addr}:{gen.key}")
+    namespace = vm.namespace()
+    for key, value in gen.consts.items():
+        namespace.setdefault(key, value)
+    local: dict[str, Any] = {}
+    exec(code, namespace, local)
+    f: Callable[..., Any] = local[fname]
+    LINE_MAPS[f.__code__] = offsets
+    if sc is not None:
+        body = local[bname] if twice else f
+        LINE_MAPS[body.__code__] = offsets
+        namespace[sc.name] = body
+    return f
