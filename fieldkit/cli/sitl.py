@@ -7,10 +7,8 @@ from typing import Annotated
 
 import typer
 
-
-def _fail(message: str) -> typer.Exit:
-    typer.echo(f"error: {message}", err=True)
-    return typer.Exit(1)
+from fieldkit.cli.errors import fail, usage_error
+from fieldkit.cli.output import out_dir, progress_bar, wrote
 
 
 def sitl_cmd(
@@ -31,31 +29,31 @@ def sitl_cmd(
 ) -> None:
     """Run SCRIPT on N real nodes against simulated autopilots, over a simulated radio."""
     from fieldkit.profiles import ProfileError, load_profile
-    from fieldkit.sim.progress import progress_bar
     from fieldkit.sitl import SitlConfig, run
 
     if not 1 <= robots <= 64:
-        raise _fail(f"--robots must be 1..64 (one process each), got {robots}")
+        raise fail(f"--robots must be 1..64 (one process each), got {robots}")
     if not 0.0 <= drop <= 1.0:
-        raise _fail(f"--drop must be a probability in [0, 1], got {drop}")
+        raise fail(f"--drop must be a probability in [0, 1], got {drop}")
     if not seconds > 0:
-        raise _fail(f"--seconds must be > 0, got {seconds}")
+        raise fail(f"--seconds must be > 0, got {seconds}")
     if not script.is_file():
-        raise _fail(f"--script {script}: no such file")
+        raise fail(f"--script {script}: no such file")
     try:
         prof = load_profile(profile)
     except (ProfileError, OSError) as e:
-        raise _fail(str(e)) from None
+        raise fail(e) from None
     commands = []
     for text in command or []:
         parts = text.split(":")
         try:
             t, rid, code = float(parts[0]), int(parts[1]), int(parts[2])
         except (ValueError, IndexError):
-            raise _fail(f"--command {text!r}: expected T:ROBOT:CODE, e.g. 5:1:900") from None
+            raise usage_error(f"--command {text!r}: expected T:ROBOT:CODE, e.g. 5:1:900") from None
         if not 1 <= rid <= robots:
-            raise _fail(f"--command {text!r}: robots are 1..{robots}")
+            raise fail(f"--command {text!r}: robots are 1..{robots}")
         commands.append((t, rid, code))
+    out_dir(out)  # an --out that is a file fails here, with `error:`
     dirs = [str(d) for d in include or []] or [str(script.resolve().parent)]
     cfg = SitlConfig(
         script=script.resolve(),
@@ -76,3 +74,4 @@ def sitl_cmd(
     typer.echo(f"bytes sent per robot: {sent}")
     for err in summary["errors"]:
         typer.echo(f"robot {err['robot']}: {err['error']}", err=True)
+    wrote(out / "summary.json")
