@@ -28,9 +28,22 @@ def sitl_cmd(
     seed: Annotated[int, typer.Option("--seed", help="Seed of the radio's drops.")] = 0,
 ) -> None:
     """Run SCRIPT on N real nodes against simulated autopilots, over a simulated radio."""
+    import bvm
+    from bvm.errors import BuzzCompileError
     from fieldkit.profiles import ProfileError, load_profile
     from fieldkit.sitl import SitlConfig, run
 
+    commands = []
+    for text in command or []:  # first: a command line that does not parse is exit 2
+        parts = text.split(":")
+        try:
+            t, rid, code = float(parts[0]), int(parts[1]), int(parts[2])
+        except (ValueError, IndexError):
+            raise usage_error(f"--command {text!r}: expected T:ROBOT:CODE, e.g. 5:1:900") from None
+        commands.append((t, rid, code))
+    for text, (_, rid, _) in zip(command or [], commands, strict=True):
+        if not 1 <= rid <= robots:
+            raise fail(f"--command {text!r}: robots are 1..{robots}")
     if not 1 <= robots <= 64:
         raise fail(f"--robots must be 1..64 (one process each), got {robots}")
     if not 0.0 <= drop <= 1.0:
@@ -43,18 +56,15 @@ def sitl_cmd(
         prof = load_profile(profile)
     except (ProfileError, OSError) as e:
         raise fail(e) from None
-    commands = []
-    for text in command or []:
-        parts = text.split(":")
-        try:
-            t, rid, code = float(parts[0]), int(parts[1]), int(parts[2])
-        except (ValueError, IndexError):
-            raise usage_error(f"--command {text!r}: expected T:ROBOT:CODE, e.g. 5:1:900") from None
-        if not 1 <= rid <= robots:
-            raise fail(f"--command {text!r}: robots are 1..{robots}")
-        commands.append((t, rid, code))
-    out_dir(out)  # an --out that is a file fails here, with `error:`
     dirs = [str(d) for d in include or []] or [str(script.resolve().parent)]
+    if script.suffix != ".bo":
+        # Compile once here: a broken script is one `error: path:line:col` line, not N nodes
+        # that fail to start and a summary of None states.
+        try:
+            bvm.compile_file(script, include_dirs=dirs)
+        except BuzzCompileError as e:
+            raise fail(e) from None
+    out_dir(out)  # an --out that is a file fails here, with `error:`
     cfg = SitlConfig(
         script=script.resolve(),
         robots=robots,
@@ -75,3 +85,6 @@ def sitl_cmd(
     for err in summary["errors"]:
         typer.echo(f"robot {err['robot']}: {err['error']}", err=True)
     wrote(out / "summary.json")
+    missing = [rid for rid, state in states.items() if state is None]
+    if missing:  # a node that did not run to the end fails the run (issue 13's honest exit)
+        raise fail(f"robots {', '.join(missing)} did not run to the end: see {out}/robotN/log.txt")
