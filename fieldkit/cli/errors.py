@@ -77,21 +77,26 @@ def usage_error(message: str) -> UsageProblem:
 class FieldkitGroup(TyperGroup):
     """The root command group: applies the exit-code rule to whatever a command raises."""
 
-    def main(  # type: ignore[override]  # same call, narrowed to what fieldkit passes
+    def main(
         self,
         args: Sequence[str] | None = None,
         prog_name: str | None = None,
         complete_var: str | None = None,
         standalone_mode: bool = True,
+        windows_expand_args: bool = True,
         **extra: Any,
     ) -> Any:
         """Run the command line; exit with the status of the rule above."""
         if not standalone_mode:  # a caller that handles exceptions itself
-            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+            return super().main(
+                args, prog_name, complete_var, standalone_mode, windows_expand_args, **extra
+            )
         try:
             # Non-standalone: click hands usage errors back to us instead of printing them,
             # and returns the status of a typer.Exit (None when the command returned).
-            status = super().main(args, prog_name, complete_var, False, **extra)
+            status = super().main(
+                args, prog_name, complete_var, False, windows_expand_args, **extra
+            )
         except typer.TyperException as e:  # typer's (vendored) click usage errors, and ours
             status = _usage_error(e)
         except typer.Abort:

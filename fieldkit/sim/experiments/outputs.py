@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
+from typing import SupportsInt, cast
 
 from fieldkit.results import write_json
 from fieldkit.sim.experiments.base import (
@@ -29,7 +30,7 @@ def _one_or_all(values: Sequence[object]) -> object:
 
 def _int(result: RunResult, key: str) -> int:
     """An integer end figure of a run (figures are typed `object`: they go to JSON as they are)."""
-    return int(result.figures[key])  # type: ignore[call-overload]  # set from ints in run_one
+    return int(cast(SupportsInt, result.figures[key]))
 
 
 def summarize(plan: Plan, results: Sequence[RunResult]) -> dict[str, object]:
@@ -46,7 +47,7 @@ def summarize(plan: Plan, results: Sequence[RunResult]) -> dict[str, object]:
     air = sum(_int(r, "air_bytes") for r in results)
     errors: list[dict[str, object]] = []
     for r in results:
-        run_errors: Iterable[Mapping[str, object]] = r.figures["errors"]  # type: ignore[assignment]  # the simulator's summary
+        run_errors = cast(list[dict[str, object]], r.figures["errors"])  # the simulator's list
         errors.extend(
             {"robots": r.spec.robots, "drop": r.spec.drop, "run": r.spec.run, **err}
             for err in run_errors
