@@ -111,8 +111,14 @@ class _Compiler:
     # -- tokens, errors, emission -------------------------------------------------
 
     def fetch(self) -> None:
+        """Move to the next token."""
         self.index += 1
         self.tok = self.tokens[self.index]
+
+    def at(self, kind: Tok) -> bool:
+        """Whether the current token is `kind` (a call, so a type checker does not keep an
+        earlier test of `self.tok` across the `fetch` that changed it)."""
+        return self.tok.kind is kind
 
     def error(
         self, message: str, hint: str | None = None, tok: Token | None = None
@@ -275,7 +281,7 @@ class _Compiler:
             if sym is None or sym.is_global:
                 self.add_local(self.tok.text)
             self.fetch()
-            if self.tok.kind is not Tok.COMMA:
+            if not self.at(Tok.COMMA):
                 return
             self.fetch()
             self.expect(Tok.ID)
@@ -646,7 +652,7 @@ class _Compiler:
         self.emit("\tpusht")
         if self.tok.kind is Tok.DOT:
             self.table_field()
-            while self.tok.kind is Tok.COMMA:
+            while self.at(Tok.COMMA):
                 self.emit("\tdup")
                 self.fetch()
                 self.expect(Tok.DOT)
@@ -700,7 +706,7 @@ class _Compiler:
                 self.expect(Tok.ID)
                 sid = self.intern(self.tok.text)
                 self.fetch()
-                if self.tok.kind is Tok.PAROPEN:
+                if self.at(Tok.PAROPEN):
                     self.emit("\tdup")
                 self.emit(f"\tpushs {sid}")
             elif self.tok.kind is Tok.IDXOPEN:
@@ -710,7 +716,7 @@ class _Compiler:
                 self.expression()
                 self.expect(Tok.IDXCLOSE)
                 self.fetch()
-                if self.tok.kind is Tok.PAROPEN:
+                if self.at(Tok.PAROPEN):
                     code.insert(index_start, self.annotate("\tdup"))
             else:
                 ref = _CLOSURE

@@ -5,9 +5,9 @@ hand-made or hostile bytecode whose control flow has no structured shape, and ca
 with an unexpected number of arguments. It is also the oracle the translator is fuzzed
 against. It is small and slow on purpose; speed lives in the translator.
 
-Errors are attributed to `oldpc` following the reference's rules (docs/bytecode.md#step-loop): an exception
-leaving a frame records that frame's `oldpc` (see `recorded_pcs`), which the locator in
-bvm/vm.py reads for the innermost interpreted frame.
+Errors are attributed to `oldpc` following the reference's rules (docs/bytecode.md#step-loop):
+an exception leaving a frame records that frame's `oldpc` (see `recorded_pcs`), which the
+locator in bvm/vm.py reads for the innermost interpreted frame.
 """
 
 from __future__ import annotations

@@ -300,7 +300,8 @@ def _from_words(words: Sequence[int], where: Callable[[int], int]) -> Bundle:
         robot, messages = unpack_bundle(body)
     except BundleError as e:
         raise BundleError(e.what, where(8 * HEADER_WORDS + e.offset)) from None
-    return Bundle(robot, messages, *position, number=head >> 16 & 0xFFFF, time_ns=words[1])
+    lat, lon, alt = position
+    return Bundle(robot, messages, lat, lon, alt, number=head >> 16 & 0xFFFF, time_ns=words[1])
 
 
 def from_payload64(words: Sequence[int]) -> Bundle:

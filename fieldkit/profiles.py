@@ -22,10 +22,12 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 from fieldkit import resources
 from fieldkit.errors import FieldkitError
+
+_T = TypeVar("_T")
 
 PROFILE_DIR = resources.profile_dir()
 """Where bare profile names are looked up: the shipped profiles (`device_profiles/`)."""
@@ -91,7 +93,7 @@ class Kinematics:
 
 
 @dataclass(frozen=True)
-class Autopilot:
+class AutopilotSettings:
     """How to reach the flight controller and which modes to select."""
 
     flavour: Flavour
@@ -178,7 +180,7 @@ class Profile:
     name: str
     vehicle: VehicleKind
     kinematics: Kinematics
-    autopilot: Autopilot
+    autopilot: AutopilotSettings
     node: NodeSettings
     geofence: Geofence
     failsafe: Failsafe
@@ -476,17 +478,25 @@ def parse_profile(data: Mapping[str, Any], source: str, path: Path | None = None
     return Profile(
         name=name,
         vehicle=vehicle,
-        kinematics=kinematics,
-        autopilot=autopilot,
-        node=node,
-        geofence=geofence,
-        failsafe=failsafe,
-        battery=battery,
-        radio=radio,
-        robot_id=robot_id,
+        kinematics=_checked(kinematics),
+        autopilot=_checked(autopilot),
+        node=_checked(node),
+        geofence=_checked(geofence),
+        failsafe=_checked(failsafe),
+        battery=_checked(battery),
+        radio=_checked(radio),
+        robot_id=_checked(robot_id),
         description=description,
         path=path,
     )
+
+
+def _checked(section: _T | None) -> _T:
+    """A section that passed its checks: None only ever comes with a problem recorded, so
+    after `c.problems` was found empty this cannot fail."""
+    if section is None:
+        raise ProfileError(["internal: a section is missing but no problem was recorded"])
+    return section
 
 
 def _kinematics(c: _Checker, t: dict[str, Any] | None, vehicle: str | None) -> Kinematics | None:
@@ -509,19 +519,29 @@ def _kinematics(c: _Checker, t: dict[str, Any] | None, vehicle: str | None) -> K
             values[key] = v
         else:
             values[key] = c.get(t, where, _POSITIVE)
-    if None in (speed, accel, accuracy, *values.values()):
+    climb, descent, takeoff = (values[key] for key in vertical)
+    if (
+        speed is None
+        or accel is None
+        or accuracy is None
+        or climb is None
+        or descent is None
+        or takeoff is None
+    ):
         return None
     return Kinematics(
         max_speed_mps=speed,
         max_accel_mps2=accel,
-        max_climb_mps=values["max_climb_mps"],
-        max_descent_mps=values["max_descent_mps"],
-        takeoff_altitude_m=values["takeoff_altitude_m"],
+        max_climb_mps=climb,
+        max_descent_mps=descent,
+        takeoff_altitude_m=takeoff,
         hover_accuracy_m=accuracy,
     )
 
 
-def _autopilot(c: _Checker, t: dict[str, Any] | None, vehicle: str | None) -> Autopilot | None:
+def _autopilot(
+    c: _Checker, t: dict[str, Any] | None, vehicle: str | None
+) -> AutopilotSettings | None:
     """[autopilot]: flavour and link are required; mode names default per flavour."""
     if t is None:
         return None
@@ -534,9 +554,20 @@ def _autopilot(c: _Checker, t: dict[str, Any] | None, vehicle: str | None) -> Au
     ]
     heartbeat = c.get(t, "autopilot.heartbeat_timeout_s", _POSITIVE, 3.0)
     gps_fix = c.get(t, "autopilot.gps_fix_timeout_s", _POSITIVE, 120.0)
-    if None in (flavour, url, baud, heartbeat, gps_fix, *modes):
+    guided, loiter, land, rtl = modes
+    if (
+        flavour is None
+        or url is None
+        or baud is None
+        or heartbeat is None
+        or gps_fix is None
+        or guided is None
+        or loiter is None
+        or land is None
+        or rtl is None
+    ):
         return None
-    return Autopilot(flavour, url, baud, *modes, heartbeat, gps_fix)
+    return AutopilotSettings(flavour, url, baud, guided, loiter, land, rtl, heartbeat, gps_fix)
 
 
 def _geofence(
@@ -622,7 +653,7 @@ def _failsafe(c: _Checker, t: dict[str, Any] | None, vehicle: str | None) -> Fai
         "on_low_battery": "stop" if ground else "rtl",
         "on_script_error": "stop" if ground else "hold",
     }
-    actions: dict[str, str | None] = {}
+    actions: dict[str, FailsafeAction | None] = {}
     for key, default in defaults.items():
         where = f"failsafe.{key}"
         a = c.get(t, where, _choice(FAILSAFE_ACTIONS), default)
@@ -631,9 +662,12 @@ def _failsafe(c: _Checker, t: dict[str, Any] | None, vehicle: str | None) -> Fai
             a = None
         actions[key] = a
     low = c.get(t, "failsafe.low_battery_percent", _num(g=0.0, lt=100.0), 20.0)
-    if low is None or None in actions.values():
+    heartbeat = actions["on_heartbeat_loss"]
+    battery = actions["on_low_battery"]
+    script = actions["on_script_error"]
+    if low is None or heartbeat is None or battery is None or script is None:
         return None
-    return Failsafe(**actions, low_battery_percent=low)
+    return Failsafe(heartbeat, battery, script, low_battery_percent=low)
 
 
 def _battery(c: _Checker, t: dict[str, Any] | None) -> Battery | None:
@@ -670,7 +704,15 @@ def _radio(c: _Checker, t: dict[str, Any] | None) -> RadioSettings | None:
     udp_port = c.get(t, "radio.udp_port", _PORT, 24580)
     budget = c.get(t, "radio.per_step_budget_bytes", _whole(1, 1 << 20), 190)
     id_map = _id_map(c, t.get("id_map", {}))
-    if None in (kind, port, baud, api_mode, udp_port, budget, id_map):
+    if (
+        kind is None
+        or port is None
+        or baud is None
+        or api_mode is None
+        or udp_port is None
+        or budget is None
+        or id_map is None
+    ):
         return None
     return RadioSettings(kind, port, baud, api_mode, udp_port, budget, id_map)
 

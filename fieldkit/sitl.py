@@ -33,6 +33,7 @@ from typing import IO, Any
 from fieldkit import geo
 from fieldkit.profiles import Profile
 from fieldkit.radio.xbee import FrameReader, TransmitRequest, receive_packet
+from fieldkit.results import write_json
 from fieldkit.robot.rc import RcCommand
 from fieldkit.vehicle.pty import PtyPair, open_pty
 from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME
@@ -247,7 +248,5 @@ def _summary(cfg: SitlConfig, robots: list[SitlRobot], relay: RadioRelay) -> dic
         "errors": errors,
         "nodes": nodes,
     }
-    (cfg.out / "summary.json").write_text(
-        json.dumps(summary, indent=2, sort_keys=True) + "\n", encoding="utf-8"
-    )
+    write_json(cfg.out / "summary.json", summary)
     return summary

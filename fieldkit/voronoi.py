@@ -346,9 +346,9 @@ def random_point_in(
     weights = [abs(area(t)) for t in triangles]
     pick = float(rng.random()) * sum(weights)
     tri = triangles[-1]
-    for t, w in zip(triangles, weights, strict=True):
+    for candidate, w in zip(triangles, weights, strict=True):
         if pick < w:
-            tri = t
+            tri = candidate
             break
         pick -= w
     u, v = float(rng.random()), float(rng.random())

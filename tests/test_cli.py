@@ -58,7 +58,7 @@ def test_compile_error_is_path_line_col_and_exit_1(tmp_path: Path) -> None:
     result = runner.invoke(app, ["compile", str(script)])
     assert result.exit_code == 1
     first = result.stderr.splitlines()[0]
-    assert first.startswith(f"{script.resolve()}:") or first.startswith(f"{script}:")
+    assert first.startswith((f"error: {script.resolve()}:", f"error: {script}:"))
     assert "Syntax error" in first
     assert "Traceback" not in result.stderr
 
@@ -80,7 +80,7 @@ def test_run_compiled_bo_uses_its_bdb_for_errors(tmp_path: Path) -> None:
     assert runner.invoke(app, ["compile", str(script)]).exit_code == 0
     result = runner.invoke(app, ["run", str(tmp_path / "e.bo")])
     assert result.exit_code == 1
-    expected = f"{script.resolve()}:3:0: type mismatch: cannot add integer and nil"
+    expected = f"error: {script.resolve()}:3:0: type mismatch: cannot add integer and nil"
     assert result.stderr.strip() == expected
     (tmp_path / "e.bdb").unlink()
     result = runner.invoke(app, ["run", str(tmp_path / "e.bo")])

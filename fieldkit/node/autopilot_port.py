@@ -4,10 +4,11 @@ snapshots in, supervisor orders out."""
 from __future__ import annotations
 
 import logging
+from typing import cast
 
 from fieldkit import geo
 from fieldkit.robot.safety import Order
-from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
+from fieldkit.robot.script_api import FLIGHT_STATUSES, IN_AIR, ON_GROUND, FlightStatus
 from fieldkit.robot.vehicle import Telemetry
 from fieldkit.vehicle.link import Autopilot
 
@@ -33,8 +34,9 @@ class MavlinkAutopilot:
         lat = t.lat if t.lat is not None else self.home[0]
         lon = t.lon if t.lon is not None else self.home[1]
         alt = t.alt_rel_m if t.alt_rel_m is not None else 0.0
-        if t.landed_state in (ON_GROUND, IN_AIR, TAKING_OFF, LANDING):
-            status = t.landed_state
+        status: FlightStatus
+        if t.landed_state in FLIGHT_STATUSES:
+            status = cast(FlightStatus, t.landed_state)  # one of the four, checked
         else:
             status = IN_AIR if t.armed and alt > 0.3 else ON_GROUND
         return Telemetry(

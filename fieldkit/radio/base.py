@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Mapping
-from typing import Literal, Protocol, runtime_checkable
+from typing import Literal, Protocol, cast, runtime_checkable
 
 UnknownSenders = Literal["drop", "sysid"]
 """What an XBee radio does with frames from serials missing from its `IdTable`."""
@@ -121,4 +121,4 @@ def check_policy(unknown: str) -> UnknownSenders:
     """`unknown` if it is an `UnknownSenders` value, else ValueError."""
     if unknown not in UNKNOWN_POLICIES:
         raise ValueError(f"unknown-sender policy must be in {UNKNOWN_POLICIES}, got {unknown!r}")
-    return unknown  # type: ignore[return-value]
+    return cast(UnknownSenders, unknown)  # one of the Literal's values, checked above

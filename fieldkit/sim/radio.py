@@ -162,9 +162,21 @@ class LinkModel:
             raise ValueError(f"bandwidth must be >= 1 byte per step, got {self.bandwidth}")
 
     @classmethod
-    def bursty(cls, mean_loss: float, mean_burst: float, **kwargs: object) -> LinkModel:
+    def bursty(
+        cls,
+        mean_loss: float,
+        mean_burst: float,
+        *,
+        range_m: float = math.inf,
+        latency: int = 1,
+        jitter: int = 0,
+        bandwidth: int | None = None,
+    ) -> LinkModel:
         """A model with Gilbert-Elliott losses of this mean rate and mean burst length (ticks)."""
-        return cls(bursts=GilbertElliott.from_loss(mean_loss, mean_burst), **kwargs)  # type: ignore[arg-type]
+        bursts = GilbertElliott.from_loss(mean_loss, mean_burst)
+        return cls(
+            range_m=range_m, latency=latency, jitter=jitter, bursts=bursts, bandwidth=bandwidth
+        )
 
 
 def distance(a: Position, b: Position) -> float:

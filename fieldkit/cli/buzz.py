@@ -1,55 +1,34 @@
-"""The `fieldkit` command line: compile, run, assemble and disassemble Buzz programs."""
+"""`fieldkit compile | run | asm | disasm`: the Buzz language tools, as the reference's bzzc,
+bzzrun, bzzasm and bzzdeasm."""
 
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import IO, Annotated, Any
 
 import typer
 
 import bvm
 from bvm.errors import BuzzAsmError, BuzzCompileError, BuzzError, BuzzLoadError
 from bvm.values import format_value
-
-app = typer.Typer(
-    help="fieldkit: take a Buzz swarm behavior from design to field deployment.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
-
-
-def _add_subcommands() -> None:
-    from fieldkit.sim.cli import sim_app
-
-    app.add_typer(sim_app, name="sim")
-    from fieldkit.autopilot.cli import vehicle_sim_cmd
-
-    app.command("vehicle-sim")(vehicle_sim_cmd)
-    from fieldkit.node.cli import node_cmd
-
-    app.command("node")(node_cmd)
-    from fieldkit.sitl_cli import sitl_cmd
-
-    app.command("sitl")(sitl_cmd)
-
-
-_add_subcommands()
-
-
-def _fail(message: str) -> typer.Exit:
-    """Print an error on stderr and return the exit to raise."""
-    typer.echo(message, err=True)
-    return typer.Exit(1)
+from fieldkit import resources
+from fieldkit.cli.errors import fail
 
 
 def _outputs(script: Path, out: Path | None) -> tuple[Path, Path, Path]:
+    """The .bo, .bdb and .basm paths: `out` and its siblings, else beside the script."""
     bo = out if out is not None else script.with_suffix(".bo")
     return bo, bo.with_suffix(".bdb"), bo.with_suffix(".basm")
 
 
-@app.command("compile")
+def _write(path: Path, data: bytes) -> None:
+    """Write an output file, creating its directory (`-o out/b.bo` with no out/ yet)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(data)
+
+
 def compile_cmd(
     script: Annotated[Path, typer.Argument(help="The .bzz source file.")],
     include: Annotated[
@@ -64,18 +43,19 @@ def compile_cmd(
         basm = bvm.compile_to_asm(_read_source(script), str(script), dirs)
         program = bvm.assemble(basm, str(script))
     except (BuzzCompileError, BuzzAsmError) as e:
-        raise _fail(str(e)) from None
+        raise fail(e) from None
     bo, bdb, basm_path = _outputs(script, out)
     try:
-        bo.write_bytes(program.bytecode)
-        bdb.write_bytes(program.debug)
+        _write(bo, program.bytecode)
+        _write(bdb, program.debug)
         if asm:
             basm_path.write_text(basm, encoding="latin-1")
     except OSError as e:
-        raise _fail(f"{e.filename}: cannot write: {e.strerror}") from None
+        raise fail(f"{e.filename}: cannot write: {e.strerror}") from None
 
 
 def _read_source(path: Path) -> bytes:
+    """The script's bytes; a file that cannot be read is a compile error at its start."""
     try:
         return path.read_bytes()
     except OSError as e:
@@ -83,12 +63,13 @@ def _read_source(path: Path) -> bytes:
 
 
 def _load(file: Path) -> bvm.Program:
+    """A .bo (with its .bdb when present) or a .bzz compiled in memory."""
     if file.suffix == ".bo":
         return bvm.Program.load(file)
     return bvm.compile_source(_read_source(file), str(file))
 
 
-def _log_to(stream: Any) -> Any:
+def _log_to(stream: IO[str]) -> Callable[..., None]:
     """The reference bzzrun `log`: arguments formatted and concatenated, then a newline."""
     raw = getattr(stream, "buffer", None)
     if raw is not None:
@@ -104,7 +85,6 @@ def _log_to(stream: Any) -> Any:
     return log
 
 
-@app.command("run")
 def run_cmd(
     file: Annotated[Path, typer.Argument(help="A .bzz script or a compiled .bo.")],
     robot_id: Annotated[int, typer.Option("--robot-id", help="The robot id (`id`).")] = 0,
@@ -117,9 +97,11 @@ def run_cmd(
 ) -> None:
     """Run a Buzz program: its global code, then optionally init/step/destroy."""
     try:
-        program = _load(file)
+        program = _load(resources.find_script(file))
     except (BuzzCompileError, BuzzAsmError, BuzzLoadError) as e:
-        raise _fail(str(e)) from None
+        raise fail(e, file) from None
+    except OSError as e:
+        raise fail(f"{file}: cannot read: {e.strerror or e}") from None
     vm = bvm.VM(robot_id=robot_id, rng_seed=seed)
     try:
         vm.load(program)
@@ -133,12 +115,11 @@ def run_cmd(
             vm.call("destroy")
     except BuzzError as e:
         sys.stdout.flush()
-        raise _fail(str(e) if e.location else f"{file}: {e}") from None
+        raise fail(e, file) from None
     finally:
         sys.stdout.flush()
 
 
-@app.command("asm")
 def asm_cmd(
     file: Annotated[Path, typer.Argument(help="A .basm assembly file.")],
     out: Annotated[Path | None, typer.Option("-o", "--output", help="Output .bo path.")] = None,
@@ -147,15 +128,17 @@ def asm_cmd(
     try:
         program = bvm.assemble(file.read_text(encoding="latin-1"), str(file))
     except OSError as e:
-        raise _fail(f"{file}: cannot read: {e.strerror}") from None
+        raise fail(f"{file}: cannot read: {e.strerror}") from None
     except BuzzAsmError as e:
-        raise _fail(str(e)) from None
+        raise fail(e) from None
     bo, bdb, _ = _outputs(file, out)
-    bo.write_bytes(program.bytecode)
-    bdb.write_bytes(program.debug)
+    try:
+        _write(bo, program.bytecode)
+        _write(bdb, program.debug)
+    except OSError as e:
+        raise fail(f"{e.filename}: cannot write: {e.strerror}") from None
 
 
-@app.command("disasm")
 def disasm_cmd(file: Annotated[Path, typer.Argument(help="A .bo bytecode file.")]) -> None:
     """Print the assembly of FILE.bo (uses the .bdb beside it when present)."""
     from bvm.disasm import disassemble
@@ -165,11 +148,18 @@ def disasm_cmd(file: Annotated[Path, typer.Argument(help="A .bo bytecode file.")
         bdb = file.with_suffix(".bdb")
         debug = bdb.read_bytes() if bdb.exists() else None
     except OSError as e:
-        raise _fail(f"{file}: cannot read: {e.strerror}") from None
-    text = disassemble(bytecode, debug)
+        raise fail(f"{file}: cannot read: {e.strerror}") from None
+    try:
+        text = disassemble(bytecode, debug)
+    except BuzzLoadError as e:  # a truncated .bo, or a corrupt .bdb beside it
+        raise fail(e, file) from None
     sys.stdout.buffer.write(text.encode("latin-1", "replace"))
 
 
-def main() -> None:
-    """Console-script entry point."""
-    app()
+#: The commands of this group, in the order `fieldkit --help` lists them.
+COMMANDS: dict[str, Callable[..., None]] = {
+    "compile": compile_cmd,
+    "run": run_cmd,
+    "asm": asm_cmd,
+    "disasm": disasm_cmd,
+}

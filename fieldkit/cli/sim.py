@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, cast
 
 import typer
 
 from bvm.errors import BuzzCompileError
+from fieldkit import resources
+from fieldkit.cli.errors import fail, usage_error
+from fieldkit.cli.output import out_dir, progress_bar, write_json, wrote
 
 if TYPE_CHECKING:
     from contextlib import AbstractContextManager
@@ -17,23 +19,12 @@ if TYPE_CHECKING:
 
     from fieldkit.sim.experiments import Plan
 
-sim_app = typer.Typer(
+app = typer.Typer(
     help="Simulate a swarm: many robots, each running the script, over an imperfect radio.",
     no_args_is_help=True,
 )
 
 
-def _fail(message: str) -> typer.Exit:
-    typer.echo(message, err=True)
-    return typer.Exit(1)
-
-
-def write_json(path: Path, data: object) -> None:
-    """Write `data` as stable, human-readable JSON (sorted keys: same run, same bytes)."""
-    path.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-
-
-@sim_app.command("run")
 def run_cmd(
     script: Annotated[Path, typer.Argument(help="The behavior, a .bzz file.")],
     robots: Annotated[int, typer.Option("--robots", help="Number of robots (ids 1..N).")],
@@ -63,9 +54,13 @@ def run_cmd(
     """Run SCRIPT on N simulated robots and write OUT/summary.json."""
     from fieldkit.sim.simulator import ConfigError, RcCommand, SimConfig, Simulation
 
+    try:  # a --command that does not parse is a command-line error (exit 2)
+        commands = [RcCommand.parse(c) for c in command or []]
+    except ConfigError as e:
+        raise usage_error(str(e)) from None
     try:
         config = SimConfig(
-            script=script,
+            script=resources.find_script(script),
             robots=robots,
             drop=drop,
             burst=burst,
@@ -73,66 +68,40 @@ def run_cmd(
             range_m=range_m,
             seconds=seconds,
             seed=seed,
-            commands=[RcCommand.parse(c) for c in command or []],
+            commands=commands,
             profile=profile,
             include_dirs=[str(d) for d in include or []],
         )
         sim = Simulation(config)
-    except ConfigError as e:
-        raise _fail(f"error: {e}") from None
-    except BuzzCompileError as e:
-        raise _fail(str(e)) from None
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise _fail(f"--out {out}: cannot create: {e.strerror}") from None
-    from fieldkit.sim.progress import progress_bar
-
+    except (ConfigError, BuzzCompileError) as e:
+        raise fail(e) from None
+    out_dir(out)
     with progress_bar(f"simulating {robots} robots", round(seconds * 10)) as advance:
         sim.run(progress=advance)
     summary = sim.summary()
     write_json(out / "summary.json", summary)
-    with (out / "log.txt").open("w", encoding="utf-8") as f:
-        for robot in sim.robots.values():
-            for line in robot.log:
-                f.write(line + "\n")
-    for err in summary["errors"]:  # type: ignore[union-attr]
+    try:
+        with (out / "log.txt").open("w", encoding="utf-8") as f:
+            for robot in sim.robots.values():
+                for line in robot.log:
+                    f.write(line + "\n")
+    except OSError as e:
+        raise fail(f"{out / 'log.txt'}: cannot write: {e.strerror or e}") from None
+    wrote(out / "log.txt")
+    for err in cast(list[dict[str, object]], summary["errors"]):
         typer.echo(f"robot {err['robot']}: {err['error']}", err=True)
 
 
 # ------------------------------------------------------------------ experiments
 
 
-def _int_option(name: str, text: str | None) -> int | None:
-    """Parse an integer option ourselves, so a bad value is an `error:` line, exit 1."""
-    if text is None:
-        return None
-    try:
-        return int(text)
-    except ValueError:
-        raise _fail(f"error: {name} must be an integer, got {text!r}") from None
-
-
-def _float_option(name: str, text: str | None) -> float | None:
-    """Parse a number option ourselves (same reason as `_int_option`)."""
-    if text is None:
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        raise _fail(f"error: {name} must be a number, got {text!r}") from None
-    if value != value:  # NaN passes every range check the wrong way
-        raise _fail(f"error: {name} must be a number, got {text!r}")
-    return value
-
-
 def _plan(
     name: str,
     robots: list[int] | None,
     drops: list[float] | None,
-    runs: str | None,
-    seed: str | None,
-    seconds: str | None,
+    runs: int | None,
+    seed: int | None,
+    seconds: float | None,
     script: Path | None,
 ) -> Plan:
     """Validate one experiment's parameters into a Plan; errors exit 1 with `error: ...`."""
@@ -143,22 +112,15 @@ def _plan(
             name,
             robots=robots,
             drops=drops,
-            runs=_int_option("--runs", runs),
-            seed=_int_option("--seed", seed) or 0,
-            seconds=_float_option("--seconds", seconds),
+            runs=runs,
+            seed=seed or 0,
+            seconds=seconds,
             script=script,
         )
         check_script(plan)
     except ExperimentError as e:
-        raise _fail(f"error: {e}") from None
+        raise fail(e) from None
     return plan
-
-
-def _mkdir(out: Path) -> None:
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise _fail(f"error: --out {out}: cannot create: {e.strerror}") from None
 
 
 def _report(name: str, summary: dict[str, object], out: Path) -> None:
@@ -169,13 +131,13 @@ def _report(name: str, summary: dict[str, object], out: Path) -> None:
         f"mean on air {summary['mean_air_bytes_per_step']} B/step",
     ]
     if "joined_fraction" in summary:
-        fractions = summary["joined_fraction"]
-        figures.insert(0, f"JOINED at the end: min {min(fractions):.2f}")  # type: ignore[type-var,arg-type]
+        fractions = cast(list[float], summary["joined_fraction"])
+        figures.insert(0, f"JOINED at the end: min {min(fractions):.2f}")
     if "final_centroid_distance_m" in summary:
-        distances = summary["final_centroid_distance_m"]
-        figures.insert(0, f"final centroid distance: max {max(distances):.2f} m")  # type: ignore[type-var,arg-type]
+        distances = cast(list[float], summary["final_centroid_distance_m"])
+        figures.insert(0, f"final centroid distance: max {max(distances):.2f} m")
     typer.echo(f"{name}: {out} ({'; '.join(figures)})")
-    for err in summary["errors"]:  # type: ignore[union-attr]
+    for err in cast(list[dict[str, object]], summary["errors"]):
         typer.echo(
             f"{name}: robots={err['robots']} drop={err['drop']} run={err['run']}: "
             f"robot {err['robot']}: {err['error']}",
@@ -184,15 +146,15 @@ def _report(name: str, summary: dict[str, object], out: Path) -> None:
 
 
 # The options `experiment` and `sweep` share, declared once so their help cannot drift apart.
-# They stay text: `_plan` parses them, so a bad value is an `error:` line rather than usage.
+# Typed: a value that does not parse is a usage error (exit 2); `_plan` checks the ranges.
 _RunsOption = Annotated[
-    str | None, typer.Option("--runs", metavar="K", help="Seeded runs per grid cell.")
+    int | None, typer.Option("--runs", metavar="K", help="Seeded runs per grid cell.")
 ]
 _SeedOption = Annotated[
-    str | None, typer.Option("--seed", metavar="S", help="Seed of run 0 (run k: S+k).")
+    int | None, typer.Option("--seed", metavar="S", help="Seed of run 0 (run k: S+k).")
 ]
 _SecondsOption = Annotated[
-    str | None,
+    float | None,
     typer.Option(
         "--seconds",
         metavar="T",
@@ -208,7 +170,6 @@ _ScriptOption = Annotated[
 ]
 
 
-@sim_app.command("experiment")
 def experiment_cmd(
     name: Annotated[
         str,
@@ -220,10 +181,10 @@ def experiment_cmd(
     ],
     out: Annotated[Path, typer.Option("--out", help="Directory for the results.")],
     robots: Annotated[
-        str | None, typer.Option("--robots", metavar="N", help="Only this robot count.")
+        int | None, typer.Option("--robots", metavar="N", help="Only this robot count.")
     ] = None,
     drop: Annotated[
-        str | None, typer.Option("--drop", metavar="P", help="Only this drop rate, 0..1.")
+        float | None, typer.Option("--drop", metavar="P", help="Only this drop rate, 0..1.")
     ] = None,
     runs: _RunsOption = None,
     seed: _SeedOption = None,
@@ -231,14 +192,17 @@ def experiment_cmd(
     script: _ScriptOption = None,
 ) -> None:
     """Run one of the paper's experiments; write summary.json, CSVs and plots into OUT."""
-    n = _int_option("--robots", robots)
-    p = _float_option("--drop", drop)
     plan = _plan(
-        name, None if n is None else [n], None if p is None else [p], runs, seed, seconds, script
+        name,
+        None if robots is None else [robots],
+        None if drop is None else [drop],
+        runs,
+        seed,
+        seconds,
+        script,
     )
-    _mkdir(out)
+    out_dir(out)
     from fieldkit.sim.experiments import run_plan, write_outputs
-    from fieldkit.sim.progress import progress_bar
 
     specs = plan.specs()
     total = sum(s.total_ticks for s in specs)
@@ -248,7 +212,6 @@ def experiment_cmd(
     _report(name, summary, out)
 
 
-@sim_app.command("sweep")
 def sweep_cmd(
     out: Annotated[Path, typer.Option("--out", help="Directory: one subdirectory per experiment.")],
     names: Annotated[
@@ -258,11 +221,11 @@ def sweep_cmd(
         ),
     ] = None,
     robots: Annotated[
-        list[str] | None,
+        list[int] | None,
         typer.Option("--robots", metavar="N", help="Only these robot counts (repeatable)."),
     ] = None,
     drop: Annotated[
-        list[str] | None,
+        list[float] | None,
         typer.Option("--drop", metavar="P", help="Only these drop rates (repeatable)."),
     ] = None,
     runs: _RunsOption = None,
@@ -274,7 +237,7 @@ def sweep_cmd(
         typer.Option("--scheduler", help="Address of a running Dask scheduler (tcp://host:8786)."),
     ] = None,
     workers: Annotated[
-        str | None, typer.Option("--workers", metavar="W", help="Local cluster workers [2].")
+        int | None, typer.Option("--workers", metavar="W", help="Local cluster workers [2].")
     ] = None,
     threads: Annotated[
         bool, typer.Option("--threads", help="Local cluster of threads instead of processes.")
@@ -282,21 +245,17 @@ def sweep_cmd(
 ) -> None:
     """Run a grid of experiments in parallel on Dask; OUT/NAME/ as `experiment` writes it."""
     from fieldkit.sim.experiments import EXPERIMENTS, write_outputs
-    from fieldkit.sim.progress import progress_bar
     from fieldkit.sim.sweep import DEFAULT_WORKERS, SweepError, cluster_client, sweep
 
-    n_workers = _int_option("--workers", workers)
-    n_workers = DEFAULT_WORKERS if n_workers is None else n_workers
+    n_workers = DEFAULT_WORKERS if workers is None else workers
     if not 1 <= n_workers <= 1024:
-        raise _fail(f"error: --workers must be between 1 and 1024, got {n_workers}")
-    counts = [_int_option("--robots", r) for r in robots] if robots else None
-    drops = [_float_option("--drop", d) for d in drop] if drop else None
+        raise fail(f"--workers must be between 1 and 1024, got {n_workers}")
     chosen = names or list(EXPERIMENTS)
     plans = [
-        _plan(name, counts, drops, runs, seed, seconds, script)  # type: ignore[arg-type]
+        _plan(name, robots or None, drop or None, runs, seed, seconds, script)
         for name in dict.fromkeys(chosen)
     ]
-    _mkdir(out)
+    out_dir(out)
     total = sum(len(p.specs()) for p in plans)
 
     def client() -> AbstractContextManager[Client]:
@@ -306,8 +265,14 @@ def sweep_cmd(
         with progress_bar(f"sweep: {total} runs", total) as advance:
             grouped = sweep(plans, client, advance)
     except SweepError as e:
-        raise _fail(f"error: {e}") from None
+        raise fail(e) from None
     for plan, results in zip(plans, grouped, strict=True):
         name = plan.experiment.name
         summary = write_outputs(plan, results, out / name)
         _report(name, summary, out / name)
+
+
+#: The commands of this group, in the order `fieldkit sim --help` lists them.
+app.command("run")(run_cmd)
+app.command("experiment")(experiment_cmd)
+app.command("sweep")(sweep_cmd)

@@ -7,10 +7,9 @@ from typing import Annotated
 
 import typer
 
-
-def _fail(message: str) -> typer.Exit:
-    typer.echo(f"error: {message}", err=True)
-    return typer.Exit(1)
+from fieldkit import resources
+from fieldkit.cli.errors import fail, usage_error
+from fieldkit.cli.output import out_dir, progress_bar, wrote
 
 
 def sitl_cmd(
@@ -30,35 +29,44 @@ def sitl_cmd(
     seed: Annotated[int, typer.Option("--seed", help="Seed of the radio's drops.")] = 0,
 ) -> None:
     """Run SCRIPT on N real nodes against simulated autopilots, over a simulated radio."""
+    import bvm
+    from bvm.errors import BuzzCompileError
+    from fieldkit.errors import ConfigError
     from fieldkit.profiles import ProfileError, load_profile
-    from fieldkit.sim.progress import progress_bar
+    from fieldkit.robot.rc import RcCommand
     from fieldkit.sitl import SitlConfig, run
 
+    commands = []
+    for text in command or []:  # first: a command line that does not parse is exit 2
+        try:
+            commands.append(RcCommand.parse(text))
+        except ConfigError as e:
+            raise usage_error(str(e)) from None
+    for text, c in zip(command or [], commands, strict=True):
+        if not 1 <= c.robot <= robots:
+            raise fail(f"--command {text!r}: robots are 1..{robots}")
     if not 1 <= robots <= 64:
-        raise _fail(f"--robots must be 1..64 (one process each), got {robots}")
+        raise fail(f"--robots must be 1..64 (one process each), got {robots}")
     if not 0.0 <= drop <= 1.0:
-        raise _fail(f"--drop must be a probability in [0, 1], got {drop}")
+        raise fail(f"--drop must be a probability in [0, 1], got {drop}")
     if not seconds > 0:
-        raise _fail(f"--seconds must be > 0, got {seconds}")
+        raise fail(f"--seconds must be > 0, got {seconds}")
+    script = resources.find_script(script)
     if not script.is_file():
-        raise _fail(f"--script {script}: no such file")
+        raise fail(f"--script {script}: no such file")
     try:
         prof = load_profile(profile)
     except (ProfileError, OSError) as e:
-        raise _fail(str(e)) from None
-    from fieldkit.errors import ConfigError
-    from fieldkit.robot.rc import RcCommand
-
-    commands = []
-    for text in command or []:
-        try:
-            c = RcCommand.parse(text)
-        except ConfigError as e:
-            raise _fail(str(e)) from None
-        if not 1 <= c.robot <= robots:
-            raise _fail(f"--command {text!r}: robots are 1..{robots}")
-        commands.append(c)
+        raise fail(e) from None
     dirs = [str(d) for d in include or []] or [str(script.resolve().parent)]
+    if script.suffix != ".bo":
+        # Compile once here: a broken script is one `error: path:line:col` line, not N nodes
+        # that fail to start and a summary of None states.
+        try:
+            bvm.compile_file(script, include_dirs=dirs)
+        except BuzzCompileError as e:
+            raise fail(e) from None
+    out_dir(out)  # an --out that is a file fails here, with `error:`
     cfg = SitlConfig(
         script=script.resolve(),
         robots=robots,
@@ -78,3 +86,7 @@ def sitl_cmd(
     typer.echo(f"bytes sent per robot: {sent}")
     for err in summary["errors"]:
         typer.echo(f"robot {err['robot']}: {err['error']}", err=True)
+    wrote(out / "summary.json")
+    missing = [rid for rid, state in states.items() if state is None]
+    if missing:  # a node that did not run to the end fails the run (issue 13's honest exit)
+        raise fail(f"robots {', '.join(missing)} did not run to the end: see {out}/robotN/log.txt")

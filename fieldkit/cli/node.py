@@ -2,42 +2,40 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import re
 import socket
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 import bvm
 from bvm.errors import BuzzCompileError
+from fieldkit import resources
+from fieldkit.cli.errors import fail, usage_error
+from fieldkit.cli.output import out_dir, write_json
 
-_log = logging.getLogger("fieldkit.node")
+if TYPE_CHECKING:
+    from fieldkit.profiles import Profile
 
 
-def _fail(message: str) -> typer.Exit:
-    typer.echo(f"error: {message}", err=True)
-    return typer.Exit(1)
-
-
-def robot_id_from(profile: object, given: int | None) -> int:
+def robot_id_from(profile: Profile, given: int | None) -> int:
     """The robot id: --robot-id, else the profile's source (a value, or the hostname's digits)."""
     if given is not None:
         if not 0 <= given <= 255:
-            raise _fail(f"--robot-id must be 0..255, got {given}")
+            raise fail(f"--robot-id must be 0..255, got {given}")
         return given
-    rid = profile.robot_id  # type: ignore[attr-defined]
+    rid = profile.robot_id
     if rid.source == "config" and rid.value is not None:
         return int(rid.value)
     if rid.source == "hostname":
         m = re.search(r"(\d+)$", socket.gethostname())
         if m and int(m.group(1)) <= 255:
             return int(m.group(1))
-        raise _fail(f"the host name {socket.gethostname()!r} ends in no robot id: use --robot-id")
-    raise _fail(f"robot_id.source = {rid.source!r}: give --robot-id")
+        raise fail(f"the host name {socket.gethostname()!r} ends in no robot id: use --robot-id")
+    raise fail(f"robot_id.source = {rid.source!r}: give --robot-id")
 
 
 def node_cmd(
@@ -77,7 +75,7 @@ def node_cmd(
     try:
         prof = load_profile(profile)
     except (ProfileError, OSError) as e:
-        raise _fail(str(e)) from None
+        raise fail(e) from None
     rid = robot_id_from(prof, robot_id)
     from fieldkit.errors import ConfigError
     from fieldkit.robot.rc import RcCommand
@@ -85,21 +83,24 @@ def node_cmd(
     try:
         commands = [RcCommand.parse(c, robot=rid) for c in command or []]
     except ConfigError as e:
-        raise _fail(str(e)) from None
+        raise usage_error(str(e)) from None
+    script = resources.find_script(script)
     try:
         if script.suffix == ".bo":
             program = bvm.Program.load(script)
         else:
             program = bvm.compile_file(script, include_dirs=[str(d) for d in include or []])
     except (BuzzCompileError, bvm.BuzzLoadError) as e:
-        raise _fail(str(e)) from None
+        raise fail(e, script) from None
+    except OSError as e:
+        raise fail(f"{script}: cannot read: {e.strerror or e}") from None
     try:
         link = Autopilot.from_profile(prof, autopilot)
         link.wait_heartbeat(connect_timeout)
         link.request_streams(prof.node.loop_rate_hz)
         t = link.wait_gps_fix(prof.autopilot.gps_fix_timeout_s)
     except AutopilotError as e:
-        raise _fail(str(e)) from None
+        raise fail(e) from None
     home = t.home if t.home is not None else (t.lat or 0.0, t.lon or 0.0, 0.0)
     home = (home[0], home[1], 0.0)
     link_radio = None
@@ -109,7 +110,7 @@ def node_cmd(
         try:
             link_radio = open_radio(radio, rid)
         except (OSError, ValueError) as e:
-            raise _fail(f"--radio {radio}: {e}") from None
+            raise fail(f"--radio {radio}: {e}") from None
 
     def say(text: str) -> None:
         sys.stdout.write(text + "\n")
@@ -135,9 +136,6 @@ def node_cmd(
         if link_radio is not None:
             link_radio.close()
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "summary.json").write_text(
-            json.dumps(node.summary(), indent=2, sort_keys=True) + "\n", encoding="utf-8"
-        )
+        write_json(out_dir(out) / "summary.json", node.summary())
     if node.runtime.error is not None:
         typer.echo(node.runtime.error, err=True)

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from fieldkit.cli.errors import fail, usage_error
 from fieldkit.profiles import ProfileError, load_profile
 
 if TYPE_CHECKING:
@@ -31,27 +32,30 @@ if TYPE_CHECKING:
     from fieldkit.vehicle.sim.vehicle import SimVehicle
 
 
-def _fail(message: str) -> typer.Exit:
-    """Print an error on stderr and return the exit to raise."""
-    typer.echo(f"vehicle-sim: {message}", err=True)
-    return typer.Exit(1)
-
-
-def parse_home(text: str) -> tuple[float, float]:
-    """ "LAT,LON" in degrees -> (lat, lon); ValueError with the expected form otherwise."""
+def _split_home(text: str) -> tuple[float, float, list[str]]:
+    """ "LAT,LON" -> (lat, lon, the two texts); ValueError when it is not two numbers."""
     parts = text.split(",")
     form = f"--home: expected LAT,LON in degrees such as 45.5,-73.6, got {text!r}"
     if len(parts) != 2:
         raise ValueError(form)
     try:
-        lat, lon = float(parts[0]), float(parts[1])
+        return float(parts[0]), float(parts[1]), parts
     except ValueError:
         raise ValueError(form) from None
+
+
+def _check_home(lat: float, lon: float, parts: list[str]) -> tuple[float, float]:
+    """(lat, lon) if they are a place on Earth; ValueError naming the one that is not."""
     if not (math.isfinite(lat) and -90.0 < lat < 90.0):
         raise ValueError(f"--home: latitude must be between -90 and 90, got {parts[0].strip()}")
     if not (math.isfinite(lon) and -180.0 <= lon <= 180.0):
         raise ValueError(f"--home: longitude must be between -180 and 180, got {parts[1].strip()}")
     return lat, lon
+
+
+def parse_home(text: str) -> tuple[float, float]:
+    """ "LAT,LON" in degrees -> (lat, lon); ValueError with the expected form otherwise."""
+    return _check_home(*_split_home(text))
 
 
 def _is_pty_request(port: str) -> bool:
@@ -100,22 +104,29 @@ def vehicle_sim_cmd(
     from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME, VehicleSimError
     from fieldkit.vehicle.sim.vehicle import SimVehicle
 
+    if home is None:
+        home_ll = DEFAULT_HOME
+    else:
+        try:  # not two numbers: the command line does not parse (exit 2)
+            split = _split_home(home)
+        except ValueError as e:
+            raise usage_error(str(e)) from None
+        try:  # two numbers but not a place (exit 1)
+            home_ll = _check_home(*split)
+        except ValueError as e:
+            raise fail(e) from None
     try:
         prof = load_profile(profile)
-    except ProfileError as e:
-        raise _fail(str(e)) from None
-    try:
-        home_ll = DEFAULT_HOME if home is None else parse_home(home)
-    except ValueError as e:
-        raise _fail(str(e)) from None
+    except (ProfileError, OSError) as e:
+        raise fail(e) from None
     if not (math.isfinite(rate) and rate > 0):
-        raise _fail(f"--rate must be > 0, got {rate}")
+        raise fail(f"--rate must be > 0, got {rate}")
     if not (math.isfinite(gps_delay) and gps_delay >= 0):
-        raise _fail(f"--gps-delay must be >= 0, got {gps_delay}")
+        raise fail(f"--gps-delay must be >= 0, got {gps_delay}")
     if not (math.isfinite(stream_hz) and stream_hz >= 0):
-        raise _fail(f"--stream-hz must be >= 0, got {stream_hz}")
+        raise fail(f"--stream-hz must be >= 0, got {stream_hz}")
     if not 1 <= sysid <= 255:
-        raise _fail(f"--sysid must be in 1..255, got {sysid}")
+        raise fail(f"--sysid must be in 1..255, got {sysid}")
 
     pty: PtyPair | None = None
     link: Path | None = None  # set once we have made it: only then is it ours to remove
@@ -123,17 +134,17 @@ def vehicle_sim_cmd(
         if _is_pty_request(port):
             wanted = Path(port) if port != "auto" else None
             if wanted is not None and (wanted.exists() or wanted.is_symlink()):
-                raise _fail(f"{port} already exists: remove it or choose another name")
+                raise fail(f"{port} already exists: remove it or choose another name")
             try:
                 pty = open_pty()
             except OSError as e:
-                raise _fail(f"cannot create a pty: {e.strerror or e}") from None
+                raise fail(f"cannot create a pty: {e.strerror or e}") from None
             device: str | int = pty.master
             if wanted is not None:
                 try:
                     wanted.symlink_to(pty.slave_path)
                 except OSError as e:
-                    raise _fail(f"cannot create {port}: {e.strerror or e}") from None
+                    raise fail(f"cannot create {port}: {e.strerror or e}") from None
                 link = wanted
         else:
             device = port
@@ -148,7 +159,7 @@ def vehicle_sim_cmd(
                 default_rate_hz=stream_hz,
             )
         except VehicleSimError as e:
-            raise _fail(str(e)) from None
+            raise fail(e) from None
         _serve(sim, prof.name, home_ll, port, pty, link, rate)
     finally:
         if link is not None:

@@ -1,0 +1,37 @@
+"""The `fieldkit` command line: every command, from this package only.
+
+One module per command group (`buzz`: compile, run, asm, disasm; `sim`: sim run, experiment,
+sweep; `node`; `vehicle_sim`; `sitl`), `errors` for the one way errors are reported and the
+exit-code rule, `output` for where results go. Library modules never import this package.
+"""
+
+from __future__ import annotations
+
+import typer
+
+from fieldkit.cli import buzz, node, sim, sitl, vehicle_sim
+from fieldkit.cli.errors import FieldkitGroup
+
+app = typer.Typer(
+    cls=FieldkitGroup,
+    help="fieldkit: take a Buzz swarm behavior from design to field deployment.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+# In the order `fieldkit --help` has always listed them.
+app.command("vehicle-sim")(vehicle_sim.vehicle_sim_cmd)
+app.command("node")(node.node_cmd)
+app.command("sitl")(sitl.sitl_cmd)
+for _name, _command in buzz.COMMANDS.items():
+    app.command(_name)(_command)
+app.add_typer(sim.app, name="sim")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+__all__ = ["app", "main"]
