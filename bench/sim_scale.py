@@ -27,7 +27,7 @@ import statistics
 import time
 from pathlib import Path
 
-from fieldkit import geo
+from fieldkit.robot import geo
 from fieldkit.sim.simulator import (
     DEFAULT_ORIGIN,
     TICK_S,

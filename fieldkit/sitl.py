@@ -30,10 +30,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from fieldkit import geo
-from fieldkit.profiles import Profile
 from fieldkit.radio.xbee import FrameReader, TransmitRequest, receive_packet
 from fieldkit.results import write_json
+from fieldkit.robot import geo
+from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.vehicle.pty import PtyPair, open_pty
 from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME

@@ -27,7 +27,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
 from rigs import SimRig
 
-from fieldkit.profiles import load_profile
+from fieldkit.robot.profiles import load_profile
 from fieldkit.vehicle import (
     Autopilot,
     AutopilotError,

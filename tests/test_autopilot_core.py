@@ -16,8 +16,8 @@ import pytest
 from pymavlink.dialects.v20 import all as mavlink2
 from rigs import MemoryRig, SimRig
 
-from fieldkit import geo
-from fieldkit.profiles import load_profile
+from fieldkit.robot import geo
+from fieldkit.robot.profiles import load_profile
 from fieldkit.vehicle import AutopilotCore, CommandStatus, MavCommand, SimArduPilot
 
 HOME = (45.5049, -73.6133)

@@ -17,8 +17,8 @@ from harness import Harness
 
 import bvm
 from bvm.values import f32, format_value
-from fieldkit import geo, shapes
-from fieldkit import voronoi as vor
+from fieldkit.robot import geo, shapes
+from fieldkit.robot import voronoi as vor
 from fieldkit.sim import simulator as sim_mod
 from fieldkit.sim.radio import LinkModel
 

@@ -1,4 +1,4 @@
-"""The ROSBuzz bundle and Mavlink container (fieldkit.bundle): documented bytes, limits, hostility.
+"""The ROSBuzz bundle and Mavlink container (fieldkit.robot.bundle): bytes, limits, hostility.
 
 Long fuzz campaigns: `python -m tests.fuzz.bundle_fuzz --seconds 60 --seed S`.
 """
@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 import bvm
-from fieldkit import bundle as B
+from fieldkit.robot import bundle as B
 
 FAST = settings(deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 

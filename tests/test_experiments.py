@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from fieldkit import voronoi
 from fieldkit.cli import app
+from fieldkit.robot import voronoi
 from fieldkit.sim import experiments as ex
 from fieldkit.sim.sweep import cluster_client, sweep
 

@@ -1,4 +1,4 @@
-"""fieldkit.geo: known values, ROSBuzz's formula, round trips, bearings in every quadrant."""
+"""fieldkit.robot.geo: known values, ROSBuzz's formula, round trips, bearings in every quadrant."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from fieldkit.geo import (
+from fieldkit.robot.geo import (
     EARTH_RADIUS_M,
     LocalFrame,
     ned_offset,

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fieldkit.profiles import Battery, Kinematics, Profile, load_profile
+from fieldkit.robot.profiles import Battery, Kinematics, Profile, load_profile
 from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
 from fieldkit.vehicle.kinematics import DT, Vehicle
 

@@ -16,7 +16,7 @@ import bvm
 from bvm.values import f32
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.node import Node
-from fieldkit.profiles import load_profile
+from fieldkit.robot.profiles import load_profile
 from fieldkit.vehicle.link import Autopilot
 from fieldkit.vehicle.pty import open_pty
 

@@ -1,4 +1,4 @@
-"""fieldkit.profiles: the shipped profiles load, and every broken variant says where and why."""
+"""fieldkit.robot.profiles: the shipped profiles load; every broken variant says where, why."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from fieldkit.profiles import (
+from fieldkit.robot.profiles import (
     PROFILE_DIR,
     Profile,
     ProfileError,
@@ -99,7 +99,7 @@ def test_error_names_the_shipped_file_relative_to_the_repo(
         shipped_text("solo").replace("max_speed_mps = 5.0", "max_speed_mps = -1"),
         encoding="utf-8",
     )
-    monkeypatch.setattr("fieldkit.profiles.PROFILE_DIR", d)
+    monkeypatch.setattr("fieldkit.robot.profiles.PROFILE_DIR", d)
     with pytest.raises(ProfileError) as e:
         load_profile("solo")
     assert (

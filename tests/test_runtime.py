@@ -17,12 +17,11 @@ import pytest
 from rigs import SimRig
 
 import bvm
-from fieldkit import bundle as wirebundle
-from fieldkit import geo
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.node import Node
-from fieldkit.profiles import load_profile
-from fieldkit.robot import RcCommand, RobotRuntime, ScriptStatus, Sensors, TickRecord
+from fieldkit.robot import RcCommand, RobotRuntime, ScriptStatus, Sensors, TickRecord, geo
+from fieldkit.robot import bundle as wirebundle
+from fieldkit.robot.profiles import load_profile
 from fieldkit.sim.simulator import SimConfig, Simulation
 
 HOME = (45.5049, -73.6133)

@@ -7,8 +7,8 @@ from typing import Any
 
 import pytest
 
-from fieldkit import geo
-from fieldkit.profiles import Geofence, load_profile
+from fieldkit.robot import geo
+from fieldkit.robot.profiles import Geofence, load_profile
 from fieldkit.robot.safety import Order, Supervisor
 from fieldkit.robot.script_api import IN_AIR, ON_GROUND, Command, Sensors
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 import bvm
-from fieldkit import geo
-from fieldkit.polygon import inside, segment_exit
+from fieldkit.robot import geo
+from fieldkit.robot.polygon import inside, segment_exit
 from fieldkit.robot.script_api import Command, ScriptAPI, Sensors
 
 HERE = (45.5, -73.6)

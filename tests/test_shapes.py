@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 import bvm
-from fieldkit import shapes
-from fieldkit.shapes import GraphError, GraphNode, parse_graph
+from fieldkit.robot import shapes
+from fieldkit.robot.shapes import GraphError, GraphNode, parse_graph
 
 
 def test_parse_orders_predecessors_first_and_keeps_units() -> None:

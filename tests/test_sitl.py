@@ -9,7 +9,7 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from fieldkit.cli import app
-from fieldkit.profiles import load_profile
+from fieldkit.robot.profiles import load_profile
 from fieldkit.sitl import SitlConfig, run
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -10,10 +10,10 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from fieldkit import bundle as B
-from fieldkit.profiles import RadioSettings
 from fieldkit.radio import RadioLink, UdpRadio, from_profile, open_radio
 from fieldkit.radio import udp as U
+from fieldkit.robot import bundle as B
+from fieldkit.robot.profiles import RadioSettings
 
 
 def free_port() -> int:

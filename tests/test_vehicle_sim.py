@@ -25,10 +25,10 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
 from typer.testing import CliRunner
 
-from fieldkit import geo
 from fieldkit.cli import app
 from fieldkit.cli.vehicle_sim import parse_home
-from fieldkit.profiles import load_profile
+from fieldkit.robot import geo
+from fieldkit.robot.profiles import load_profile
 from fieldkit.vehicle import Autopilot, PtyPair, SimVehicle, VehicleSimError, open_pty
 
 HOME = (45.5049, -73.6133)

@@ -62,7 +62,7 @@ def venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_the_wheel_carries_its_data_and_not_the_checkout(venv: Path, tmp_path: Path) -> None:
     """fieldkit, its profiles and its scripts are imported from the venv, not from ROOT."""
     probe = (
-        "import fieldkit, fieldkit.resources as r, fieldkit.profiles as p;"
+        "import fieldkit, fieldkit.resources as r, fieldkit.robot.profiles as p;"
         "print(fieldkit.__file__); print(r.script_dir()); print(' '.join(p.list_profiles()));"
         "print(r.find_script('task_allocation.bzz'))"
     )

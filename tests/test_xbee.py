@@ -20,8 +20,8 @@ from fuzz import bundle_fuzz
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fieldkit import bundle as B
 from fieldkit.radio import xbee as X
+from fieldkit.robot import bundle as B
 
 #: The worked example (docs/bundle.md#worked-example): robot 7, number 1, BROADCAST "cmd"=22 +
 #: JOIN 3.

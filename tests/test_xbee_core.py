@@ -17,9 +17,9 @@ from digi.xbee.models.address import XBee16BitAddress, XBee64BitAddress
 from digi.xbee.packets.common import ReceivePacket as DigiReceive
 from fuzz.bundle_fuzz import EXAMPLE
 
-from fieldkit import bundle as B
 from fieldkit.radio import xbee as X
 from fieldkit.radio.xbee_core import ModemEvent, PacketReceived, TransmitReport, XBeeCore
+from fieldkit.robot import bundle as B
 
 SERIALS = {1: 0x0013A20040000001, 2: 0x0013A20040000002, 3: 0x0013A20040000003}
 ID_MAP = {f"{s:016X}": i for i, s in SERIALS.items()}

@@ -28,11 +28,11 @@ from fuzz.bundle_fuzz import EXAMPLE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fieldkit import bundle as B
-from fieldkit.profiles import RadioSettings
 from fieldkit.radio import RadioLink, XBeeRadio, from_profile, open_radio
 from fieldkit.radio import xbee as X
 from fieldkit.radio import xbeemav as M
+from fieldkit.robot import bundle as B
+from fieldkit.robot.profiles import RadioSettings
 
 SERIALS = {1: 0x0013A20040000001, 2: 0x0013A20040000002, 3: 0x0013A20040000003}
 ID_MAP = {f"{s:016X}": i for i, s in SERIALS.items()}

@@ -18,7 +18,7 @@ from fieldkit.cli.errors import fail, usage_error
 from fieldkit.cli.output import out_dir, write_json
 
 if TYPE_CHECKING:
-    from fieldkit.profiles import Profile
+    from fieldkit.robot.profiles import Profile
 
 
 def robot_id_from(profile: Profile, given: int | None) -> int:
@@ -67,7 +67,7 @@ def node_cmd(
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
     from fieldkit.node.autopilot_port import MavlinkAutopilot
     from fieldkit.node.node import Node
-    from fieldkit.profiles import ProfileError, load_profile
+    from fieldkit.robot.profiles import ProfileError, load_profile
     from fieldkit.vehicle.autopilot import AutopilotError
     from fieldkit.vehicle.link import Autopilot
 

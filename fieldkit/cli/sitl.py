@@ -32,7 +32,7 @@ def sitl_cmd(
     import bvm
     from bvm.errors import BuzzCompileError
     from fieldkit.errors import ConfigError
-    from fieldkit.profiles import ProfileError, load_profile
+    from fieldkit.robot.profiles import ProfileError, load_profile
     from fieldkit.robot.rc import RcCommand
     from fieldkit.sitl import SitlConfig, run
 

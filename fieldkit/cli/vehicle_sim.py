@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from fieldkit.cli.errors import fail, usage_error
-from fieldkit.profiles import ProfileError, load_profile
+from fieldkit.robot.profiles import ProfileError, load_profile
 
 if TYPE_CHECKING:
     from fieldkit.vehicle.pty import PtyPair

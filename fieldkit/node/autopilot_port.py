@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 from typing import cast
 
-from fieldkit import geo
+from fieldkit.robot import geo
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import FLIGHT_STATUSES, IN_AIR, ON_GROUND, FlightStatus
 from fieldkit.robot.vehicle import Telemetry

@@ -22,9 +22,9 @@ from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 
 import bvm
-from fieldkit import geo
-from fieldkit.profiles import Profile
 from fieldkit.radio.base import RadioLink
+from fieldkit.robot import geo
+from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.runtime import RobotRuntime
 from fieldkit.robot.vehicle import VehiclePort, sensors_from

@@ -24,7 +24,7 @@ from .xbee_serial import XBeeRadio
 from .xbeemav import XbeeMav
 
 if TYPE_CHECKING:
-    from fieldkit.profiles import RadioSettings
+    from fieldkit.robot.profiles import RadioSettings
 
 __all__ = [
     "IdTable",

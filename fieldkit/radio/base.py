@@ -1,11 +1,11 @@
 """The radio interface the field node drives once per tick, and the XBee serial -> robot id table.
 
-A radio moves one robot's bundles (`fieldkit.bundle.encode` output, the "air bytes") to every
+A radio moves one robot's bundles (`fieldkit.robot.bundle.encode` output, the "air bytes") to every
 other robot in range and back. The node calls, once per 10 Hz tick:
 
     for sender, data in radio.poll():      # everything received since the last poll
-        bundle = fieldkit.bundle.decode(data)
-    radio.send(fieldkit.bundle.encode(my_bundle))
+        bundle = fieldkit.robot.bundle.decode(data)
+    radio.send(fieldkit.robot.bundle.encode(my_bundle))
 
 Neither call blocks: `send` queues (the radio paces its frames), `poll` reads what the
 operating system already holds and writes what the pacing allows. Hostile or broken input

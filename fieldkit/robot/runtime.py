@@ -33,10 +33,10 @@ from typing import NamedTuple
 
 import bvm
 from bvm.errors import BuzzError
-from fieldkit import bundle as wirebundle
-from fieldkit import geo
-from fieldkit.profiles import Profile
+from fieldkit.robot import bundle as wirebundle
+from fieldkit.robot import geo
 from fieldkit.robot import neighbors as nb
+from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.safety import Order, Supervisor
 from fieldkit.robot.script_api import V_GROUND, V_UAV, Command, ScriptAPI, Sensors

@@ -24,8 +24,8 @@ import math
 from collections import deque
 from typing import Final, Literal, NamedTuple, get_args
 
-from fieldkit import geo, polygon
-from fieldkit.profiles import FailsafeAction, Profile
+from fieldkit.robot import geo, polygon
+from fieldkit.robot.profiles import FailsafeAction, Profile
 from fieldkit.robot.script_api import Command, Sensors
 
 #: How far ahead of the vehicle a setpoint may be, in seconds at the profile's top speed.

@@ -28,7 +28,7 @@ from typing import Any, Final, Literal, NamedTuple
 import bvm
 from bvm.errors import BuzzError
 from bvm.values import Table, f32, format_value, type_name
-from fieldkit import geo, polygon
+from fieldkit.robot import geo, polygon
 
 #: storegoal refuses goals farther than this (ROSBuzz's rule, docs/rosbuzz.md#limits).
 MAX_GOAL_DISTANCE_M = 250.0
@@ -306,7 +306,7 @@ class ScriptAPI:
         while t[k] is not None:
             sites.append(_point(t[k], f"voronoi(t)[{k}]"))
             k += 1
-        from fieldkit import voronoi
+        from fieldkit.robot import voronoi
 
         if len(boundary) < 3:
             return None
@@ -342,7 +342,7 @@ class ScriptAPI:
             )
         if self.graph_loader is not None:
             return self.graph_loader(name)
-        from fieldkit import shapes
+        from fieldkit.robot import shapes
 
         try:
             return shapes.graph_table(name)

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
-from fieldkit import geo
+from fieldkit.robot import geo
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import ON_GROUND, FlightStatus, Sensors
 

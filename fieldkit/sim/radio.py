@@ -20,7 +20,7 @@ carries the sender's position at send time, so the receiver computes range and b
 from where the sender was, as ROSBuzz does from the packet's latitude and longitude.
 
 Per tick: `set_positions(positions)`, then `broadcast(step, sender, data)` once per sender
-(one opaque bundle, e.g. `fieldkit.bundle.encode`), then `receptions(step)` gives each
+(one opaque bundle, e.g. `fieldkit.robot.bundle.encode`), then `receptions(step)` gives each
 broadcast with the robots receiving it, (sender, data, sender_position, receivers, note), or
 `deliveries(step)` one (receiver, sender, data, sender_position) tuple per reception.
 

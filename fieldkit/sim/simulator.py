@@ -27,11 +27,11 @@ from pathlib import Path
 from typing import cast
 
 import bvm
-from fieldkit import bundle as wirebundle
-from fieldkit import geo
 from fieldkit.errors import ConfigError
-from fieldkit.profiles import Profile, load_profile
+from fieldkit.robot import bundle as wirebundle
+from fieldkit.robot import geo
 from fieldkit.robot import neighbors as nb
+from fieldkit.robot.profiles import Profile, load_profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.runtime import RobotRuntime
 from fieldkit.robot.safety import Order

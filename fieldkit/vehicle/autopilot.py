@@ -37,7 +37,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
 
 from fieldkit.errors import FieldkitError
-from fieldkit.profiles import Profile
+from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.mavlink import FrameReader, new_codec
 
 COMPANION_COMPONENT = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 
-from fieldkit.profiles import Battery, Kinematics, Profile
+from fieldkit.robot.profiles import Battery, Kinematics, Profile
 from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF, FlightStatus
 
 DT = 0.1

@@ -32,7 +32,7 @@ from typing import Any
 
 from pymavlink import mavutil
 
-from fieldkit.profiles import Profile
+from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.autopilot import (
     COMPANION_COMPONENT,
     GCS_SYSTEM,

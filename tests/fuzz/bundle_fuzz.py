@@ -1,4 +1,4 @@
-"""Fuzzing the ROSBuzz bundle decoders (fieldkit.bundle) with hostile input: a seeded campaign.
+"""Fuzzing the ROSBuzz bundle decoders (fieldkit.robot.bundle) with hostile input, seeded.
 
     python -m tests.fuzz.bundle_fuzz --seconds 60 --seed 1
     python -m tests.fuzz.bundle_fuzz --replay 1:12345      # one input, verbosely
@@ -33,7 +33,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from fieldkit import bundle as B
+from fieldkit.robot import bundle as B
 
 from . import runner
 

@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from fieldkit.profiles import Profile, load_profile
+from fieldkit.robot.profiles import Profile, load_profile
 from fieldkit.vehicle.autopilot import AutopilotCore
 from fieldkit.vehicle.link import Autopilot
 from fieldkit.vehicle.pty import open_pty

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Protocol
 
-from fieldkit import bundle as wirebundle
+from fieldkit.robot import bundle as wirebundle
 from fieldkit.sim.simulator import TICK_S, RcCommand, SimConfig
 
 if TYPE_CHECKING:

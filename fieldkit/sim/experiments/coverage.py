@@ -8,7 +8,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from fieldkit import geo, voronoi
+from fieldkit.robot import geo, voronoi
 from fieldkit.sim.experiments.base import (
     MISSION_S,
     RC_TAKEOFF,

@@ -51,8 +51,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
 
 from fieldkit.errors import FieldkitError
-from fieldkit.geo import LocalFrame
-from fieldkit.profiles import Profile
+from fieldkit.robot.geo import LocalFrame
+from fieldkit.robot.profiles import Profile
 from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
 from fieldkit.vehicle.kinematics import Vehicle
 from fieldkit.vehicle.mavlink import FrameReader, new_codec

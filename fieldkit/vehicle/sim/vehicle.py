@@ -22,7 +22,7 @@ from collections.abc import Callable
 
 from pymavlink import mavutil
 
-from fieldkit.profiles import Profile
+from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.autopilot import describe_error
 from fieldkit.vehicle.mavlink import adopt_codec
 from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME, SimArduPilot, VehicleSimError
