@@ -58,7 +58,7 @@ __all__ = [
 
 def compile_to_asm(source: bytes | str, path: str, include_dirs: Sequence[str] = ()) -> str:
     """Compile Buzz source to Buzz assembly (.basm text), exactly as the reference bzzparse."""
-    from bvm.compiler import compile_source as _compile
+    from bvm.compiler import compile_asm as _compile
 
     if isinstance(source, str):
         source = source.encode("utf-8")

@@ -412,7 +412,7 @@ def assemble(basm: str | bytes, path: str = "<asm>") -> tuple[bytes, bytes]:
     """Assemble .basm text into (.bo, .bdb) bytes exactly as the reference `bzzasm`.
 
     A `str` holds one character per byte (latin-1), the form
-    `bvm.compiler.compile_source` returns. Raises `BuzzAsmError` on bad input.
+    `bvm.compiler.compile_asm` returns. Raises `BuzzAsmError` on bad input.
     """
     if isinstance(basm, str):
         try:

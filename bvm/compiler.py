@@ -5,7 +5,7 @@ fetches as the reference, because each .basm line is annotated with the
 lookahead token at the moment it is emitted (docs/language.md#annotation-rule). Differences from the
 reference are the lead's deliberate fixes: lexer errors and a stray top-level
 `}` are errors, strings with a newline are errors, and a `return` that greedily
-swallowed the next line falls back to a bare `return` (see `compile_source`).
+swallowed the next line falls back to a bare `return` (see `compile_asm`).
 """
 
 from __future__ import annotations
@@ -762,7 +762,7 @@ def _expect_hint(kind: Tok, found: Token) -> str | None:
     return None
 
 
-def compile_source(source: bytes, path: str, include_dirs: Sequence[str] = ()) -> str:
+def compile_asm(source: bytes, path: str, include_dirs: Sequence[str] = ()) -> str:
     """Compile Buzz source to .basm text exactly as the reference `bzzparse` does.
 
     The text holds one character per byte (latin-1), like every Buzz string in
@@ -792,7 +792,7 @@ def compile_source(source: bytes, path: str, include_dirs: Sequence[str] = ()) -
 def compile_file(path: str, include_dirs: Sequence[str] = ()) -> str:
     """Read a .bzz file and compile it to .basm text."""
     with open(path, "rb") as f:
-        return compile_source(f.read(), path, include_dirs)
+        return compile_asm(f.read(), path, include_dirs)
 
 
 def compile_to_asm_file(src_path: str, out_path: str, include_dirs: Sequence[str] = ()) -> None:
@@ -806,4 +806,4 @@ def build(source: bytes, path: str, include_dirs: Sequence[str] = ()) -> tuple[b
     """Compile and assemble in one go: returns (.bo, .bdb) bytes, like `bzzc`."""
     from bvm.assembler import assemble
 
-    return assemble(compile_source(source, path, include_dirs), os.fspath(path))
+    return assemble(compile_asm(source, path, include_dirs), os.fspath(path))

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bvm.assembler import DebugEntry, DebugMap, assemble, parse_bdb, strtof_bits, strtoul
-from bvm.compiler import compile_source
+from bvm.compiler import compile_asm
 from bvm.errors import BuzzAsmError
 
 P = "/nonexistent/dir/prog.bzz"
@@ -29,7 +29,7 @@ def code_of(lines: str) -> bytes:
 
 
 def test_worked_example_bytes() -> None:
-    bo, _ = assemble(compile_source(b"x = 3.14\ny = -0.5\nz = 1.", P))
+    bo, _ = assemble(compile_asm(b"x = 3.14\ny = -0.5\nz = 1.", P))
     assert bo == bytes.fromhex(
         "0300 7800 7900 7a00"
         "00"
@@ -43,13 +43,13 @@ def test_worked_example_bytes() -> None:
 def test_closure_prefix_points_at_the_function() -> None:
     # Shaped like testclosure.bzz: 3 strings f, t, x and f's chunk at offset 80.
     src = b"function f() {return self}\nt = {.f = f}\nx = t.f()\nx = nil\nx = nil\n"
-    bo, _ = assemble(compile_source(src, P))
+    bo, _ = assemble(compile_asm(src, P))
     assert bo[:20] == bytes.fromhex("0300 6600 7400 7800 25 00000000 26 50000000 1d 00")
     assert bo[80:82] == bytes.fromhex("29 00")  # lload 0: first instruction of f
 
 
 def test_empty_program_is_three_bytes() -> None:
-    bo, bdb = assemble(compile_source(b"", P))
+    bo, bdb = assemble(compile_asm(b"", P))
     assert (bo, bdb) == (b"\x00\x00\x00", b"")
 
 
@@ -191,7 +191,7 @@ def test_debug_field_rules() -> None:
 
 
 def test_compiled_program_debug_info() -> None:
-    _, bdb = assemble(compile_source(b"x = 3.14\ny = -0.5\nz = 1.", P))
+    _, bdb = assemble(compile_asm(b"x = 3.14\ny = -0.5\nz = 1.", P))
     records = parse_bdb(bdb)
     assert records[0] == (9, DebugEntry(1, 2, P.encode()))
     assert records[-2:] == [(41, DebugEntry(0, 1, b"(null)")), (42, DebugEntry(0, 1, b"(null)"))]

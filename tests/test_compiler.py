@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from bvm.compiler import MAX_NESTING, build, compile_source
+from bvm.compiler import MAX_NESTING, build, compile_asm
 from bvm.errors import BuzzCompileError
 
 P = "/nonexistent/dir/prog.bzz"  # realpath of a missing file is itself
@@ -19,7 +19,7 @@ P = "/nonexistent/dir/prog.bzz"  # realpath of a missing file is itself
 
 def basm(src: str | bytes, path: str = P, include_dirs: tuple[str, ...] = ()) -> str:
     data = src.encode() if isinstance(src, str) else src
-    return compile_source(data, path, include_dirs)
+    return compile_asm(data, path, include_dirs)
 
 
 def chunks(text: str) -> dict[int, list[str]]:

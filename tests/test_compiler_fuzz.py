@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bvm.assembler import assemble
-from bvm.compiler import compile_source
+from bvm.compiler import compile_asm
 from bvm.disasm import disassemble
 from bvm.errors import BuzzCompileError
 
@@ -40,7 +40,7 @@ TOKENS = [
 def check(source: bytes) -> None:
     """The fuzz property for one source text."""
     try:
-        text = compile_source(source, P)
+        text = compile_asm(source, P)
     except BuzzCompileError as exc:
         assert isinstance(exc.line, int) and isinstance(exc.col, int)
         assert exc.path == P
@@ -160,14 +160,14 @@ PROGRAMS = st.lists(st.one_of(STATEMENTS, FUNCTIONS, st.just("var v = 1")), max_
 @settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(PROGRAMS)
 def test_grammar_valid_programs_compile_and_round_trip(program: str) -> None:
-    text = compile_source(program.encode(), P)
+    text = compile_asm(program.encode(), P)
     bo, bdb = assemble(text, "<fuzz>")
     assert assemble(disassemble(bo, bdb)) == (bo, bdb)
 
 
 @pytest.mark.parametrize("source", VALID)
 def test_corpus_compiles(source: bytes) -> None:
-    text = compile_source(source, P)
+    text = compile_asm(source, P)
     bo, bdb = assemble(text)
     assert assemble(disassemble(bo, bdb)) == (bo, bdb)
 

@@ -192,14 +192,14 @@ def _code_only(source: str) -> str:
 
 
 def test_corpus_covers_every_opcode(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from bvm.compiler import compile_source
+    from bvm.compiler import compile_asm
     from bvm.errors import BuzzCompileError
 
     _prepare_cwd(tmp_path, monkeypatch)
     used: set[str] = set()
     for script in SCRIPTS:
         try:
-            basm = compile_source(script.read_bytes(), str(script))
+            basm = compile_asm(script.read_bytes(), str(script))
         except BuzzCompileError:
             if script.with_suffix(".err").exists():
                 continue  # a script that must fail to compile

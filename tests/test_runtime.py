@@ -19,7 +19,15 @@ from rigs import SimRig
 import bvm
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.node import Node
-from fieldkit.robot import RcCommand, RobotRuntime, ScriptStatus, Sensors, TickRecord, geo
+from fieldkit.robot import (
+    Command,
+    RcCommand,
+    RobotRuntime,
+    ScriptStatus,
+    Sensors,
+    TickRecord,
+    geo,
+)
 from fieldkit.robot import bundle as wirebundle
 from fieldkit.robot.profiles import load_profile
 from fieldkit.sim.simulator import SimConfig, Simulation
@@ -262,3 +270,17 @@ function step() {
     assert top == pytest.approx(RTL_ALT_M)  # it climbed first
     assert (v.x, v.y, v.z) == pytest.approx((*home, 0.0), abs=1e-6)
     assert v.status == 1 and not v.armed  # landed and disarmed
+
+
+def test_a_goto_target_is_reached_within_the_profiles_hover_accuracy() -> None:
+    """hover_accuracy_m was parsed and never used; the supervisor answers with it."""
+    r = runtime("function step() {}")
+    sup = r.supervisor
+    accuracy = r.profile.kinematics.hover_accuracy_m
+    assert not sup.arrived(sensors(alt=10.0, status=2))  # no target yet
+    sup.submit([Command("goto", (30.0, 40.0, 10.0))])
+    sup.tick(sensors(alt=10.0, status=2))
+    near = 0.9 * accuracy
+    assert sup.arrived(sensors(north=30.0 - near, east=40.0, alt=10.0, status=2))
+    assert not sup.arrived(sensors(north=30.0 - 1.5 * accuracy, east=40.0, alt=10.0, status=2))
+    assert not sup.arrived(sensors(north=30.0, east=40.0, alt=10.0 + 1.5 * accuracy, status=2))

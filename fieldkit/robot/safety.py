@@ -82,9 +82,8 @@ class Supervisor:
         self._now = 0  # ticks
         self.clamped = 0  # setpoints changed by the fence or the ceiling
         # How close to a goto target counts as there (the profile's hover accuracy): the
-        # setpoint keeps streaming (PX4 needs it), but the arrival is known and reported.
+        # setpoint keeps streaming (PX4 needs it); `arrived` tells, asked (not every tick).
         self.accuracy = profile.kinematics.hover_accuracy_m
-        self.arrived = False  # within `accuracy` of the latched goto target
 
     # ------------------------------------------------------------ inputs
 
@@ -137,7 +136,6 @@ class Supervisor:
             c = self.queue.popleft()
             if c.kind == "goto":
                 self.target = self._fenced(v, c.args)
-                self.arrived = False
                 continue  # the carrot below follows the newest target
             if c.kind == "takeoff":
                 if self.ground:
@@ -158,12 +156,16 @@ class Supervisor:
             self.target = None
             return order
         if self.target is not None:
-            self._check_arrival(v, self.target)
             return Order("goto", self._carrot(v, self.target))
         return None
 
-    def _check_arrival(self, v: Sensors, target: tuple[float, float, float]) -> None:
-        self.arrived = math.hypot(target[0] - v.north, target[1] - v.east) <= self.accuracy and (
+    def arrived(self, v: Sensors) -> bool:
+        """Whether the vehicle is at its goto target, within the profile's hover accuracy
+        (horizontally, and vertically for a UAV); False without a target."""
+        target = self.target
+        if target is None:
+            return False
+        return math.hypot(target[0] - v.north, target[1] - v.east) <= self.accuracy and (
             self.ground or abs(target[2] - v.alt) <= self.accuracy
         )
 

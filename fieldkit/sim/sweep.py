@@ -18,6 +18,7 @@ from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager, contextmanager
 from typing import TYPE_CHECKING
 
+from fieldkit.errors import FieldkitError
 from fieldkit.sim.experiments import Plan, RunResult, RunSpec, run_one
 
 if TYPE_CHECKING:
@@ -29,7 +30,7 @@ if TYPE_CHECKING:
 DEFAULT_WORKERS = 2
 
 
-class SweepError(RuntimeError):
+class SweepError(FieldkitError, RuntimeError):
     """The cluster could not be reached or started."""
 
 

@@ -31,7 +31,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any
+from typing import Any, TypedDict
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
@@ -222,6 +222,23 @@ def _is_vehicle_heartbeat(msg: Any) -> bool:
         mavlink2.MAV_TYPE_ONBOARD_CONTROLLER,
         mavlink2.MAV_TYPE_CAMERA,
     )
+
+
+class CoreOptions(TypedDict, total=False):
+    """`AutopilotCore`'s keyword options, as a transport passes them on unchanged."""
+
+    profile: Profile | None
+    clock: Callable[[], float]
+    source_system: int
+    source_component: int
+    ack_timeout_s: float
+    max_attempts: int
+    queue_timeout_s: float
+    heartbeat_interval_s: float | None
+    heartbeat_timeout_s: float | None
+    override_channel: int
+    override_pwm: int
+    target_system: int | None
 
 
 class AutopilotCore:

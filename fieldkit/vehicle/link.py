@@ -26,19 +26,17 @@ between polls leaves at once), and adds the bounded blocking waits used at start
 from __future__ import annotations
 
 import select
-import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Unpack
 
 from pymavlink import mavutil
 
 from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.autopilot import (
-    COMPANION_COMPONENT,
-    GCS_SYSTEM,
     AutopilotCore,
     AutopilotError,
     AutopilotState,
+    CoreOptions,
     MavCommand,
     describe_error,
 )
@@ -52,24 +50,7 @@ _READ_CHUNK = 4096
 class Autopilot(AutopilotCore):
     """The node's MAVLink link to one autopilot: the protocol core on a pymavlink connection."""
 
-    def __init__(
-        self,
-        url: str,
-        *,
-        baud: int = 57600,
-        profile: Profile | None = None,
-        clock: Callable[[], float] = time.monotonic,
-        source_system: int = GCS_SYSTEM,
-        source_component: int = COMPANION_COMPONENT,
-        ack_timeout_s: float = 1.0,
-        max_attempts: int = 3,
-        queue_timeout_s: float = 10.0,
-        heartbeat_interval_s: float | None = 1.0,
-        heartbeat_timeout_s: float | None = None,
-        override_channel: int = 5,
-        override_pwm: int = 1800,
-        target_system: int | None = None,
-    ) -> None:
+    def __init__(self, url: str, *, baud: int = 57600, **options: Unpack[CoreOptions]) -> None:
         """Open `url` (any pymavlink connection string); raises AutopilotError if it fails.
 
         The other options are `AutopilotCore`'s: `profile` gives the mode names, the
@@ -79,21 +60,7 @@ class Autopilot(AutopilotCore):
         microseconds reads as the pilot taking over; `target_system` pins the autopilot's
         system id (by default the first autopilot heartbeat decides).
         """
-        super().__init__(
-            url=url,
-            profile=profile,
-            clock=clock,
-            source_system=source_system,
-            source_component=source_component,
-            ack_timeout_s=ack_timeout_s,
-            max_attempts=max_attempts,
-            queue_timeout_s=queue_timeout_s,
-            heartbeat_interval_s=heartbeat_interval_s,
-            heartbeat_timeout_s=heartbeat_timeout_s,
-            override_channel=override_channel,
-            override_pwm=override_pwm,
-            target_system=target_system,
-        )
+        super().__init__(url=url, **options)
         try:
             self._conn = mavutil.mavlink_connection(
                 url,

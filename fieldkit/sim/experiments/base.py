@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Protocol
 
+from fieldkit.errors import FieldkitError
 from fieldkit.robot import bundle as wirebundle
 from fieldkit.sim.simulator import TICK_S, RcCommand, SimConfig
 
@@ -37,7 +38,7 @@ SAMPLE_TICKS = round(1.0 / TICK_S)
 Row = dict[str, float | int]
 
 
-class ExperimentError(ValueError):
+class ExperimentError(FieldkitError, ValueError):
     """An invalid experiment parameter, with a message saying which and why."""
 
 

@@ -45,7 +45,7 @@ import math
 import random
 from collections import Counter
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
@@ -140,6 +140,20 @@ class SimFaults:
     garbage_len: int = 8
     corrupt_every: int = 0  # every Nth frame leaves with a broken CRC (0: never)
     drop_acks: int = 0  # the next N COMMAND_ACKs are lost on the way (the command still acts)
+
+
+class SimOptions(TypedDict, total=False):
+    """`SimArduPilot`'s keyword options, as a transport passes them on unchanged."""
+
+    home: tuple[float, float]
+    home_alt_m: float
+    sysid: int
+    compid: int
+    gps_fix_delay_s: float
+    default_rate_hz: float
+    auto_disarm_s: float | None
+    rtl_alt_m: float
+    seed: int
 
 
 class SimArduPilot:

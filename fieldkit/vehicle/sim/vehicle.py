@@ -19,13 +19,14 @@ import select
 import threading
 import time
 from collections.abc import Callable
+from typing import Unpack
 
 from pymavlink import mavutil
 
 from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.autopilot import describe_error
 from fieldkit.vehicle.mavlink import adopt_codec
-from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME, SimArduPilot, VehicleSimError
+from fieldkit.vehicle.sim.ardupilot import SimArduPilot, SimOptions, VehicleSimError
 
 
 class _FdPort:
@@ -108,16 +109,8 @@ class SimVehicle(SimArduPilot):
         profile: Profile,
         device: str | int,
         *,
-        home: tuple[float, float] = DEFAULT_HOME,
-        home_alt_m: float = 50.0,
         baud: int = 57600,
-        sysid: int = 1,
-        compid: int = 1,
-        gps_fix_delay_s: float = 0.0,
-        default_rate_hz: float = 0.0,
-        auto_disarm_s: float | None = 10.0,
-        rtl_alt_m: float = 15.0,
-        seed: int = 0,
+        **options: Unpack[SimOptions],
     ) -> None:
         """A disarmed vehicle at `home`, talking on `device`.
 
@@ -126,24 +119,13 @@ class SimVehicle(SimArduPilot):
         "tcpin:0.0.0.0:5760", "udpout:127.0.0.1:14550"... The other options are
         `SimArduPilot`'s.
         """
-        super().__init__(
-            profile,
-            home=home,
-            home_alt_m=home_alt_m,
-            sysid=sysid,
-            compid=compid,
-            gps_fix_delay_s=gps_fix_delay_s,
-            default_rate_hz=default_rate_hz,
-            auto_disarm_s=auto_disarm_s,
-            rtl_alt_m=rtl_alt_m,
-            seed=seed,
-        )
+        super().__init__(profile, **options)
         if isinstance(device, int):
             self.port: _FdPort | _UrlPort = _FdPort(device)
             self.device = f"fd {device}"
         else:
             try:
-                url_port = _UrlPort(device, baud, sysid, compid)
+                url_port = _UrlPort(device, baud, self.sysid, self.compid)
             except Exception as e:  # serial, socket and value errors alike
                 raise VehicleSimError(f"cannot open port {device}: {describe_error(e)}") from e
             adopt_codec(url_port.conn, self._mav)
