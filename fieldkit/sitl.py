@@ -182,6 +182,8 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
                 str(cfg.seconds),
                 "--out",
                 str(r.out),
+                "--seed",
+                str(cfg.seed),
                 *(a for d in cfg.include_dirs for a in ("-I", d)),
                 *cfg.extra,
             ]

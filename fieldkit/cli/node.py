@@ -63,6 +63,9 @@ def node_cmd(
     connect_timeout: Annotated[
         float, typer.Option("--connect-timeout", help="Seconds to wait for the autopilot.")
     ] = 30.0,
+    seed: Annotated[
+        int, typer.Option("--seed", help="Seed of the script's random draws (with the robot id).")
+    ] = 0,
 ) -> None:
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
     from fieldkit.node.autopilot_port import MavlinkAutopilot
@@ -125,6 +128,7 @@ def node_cmd(
         home=home,
         commands=commands,
         out=say,
+        seed=seed,
     )
     try:
         node.run(seconds)

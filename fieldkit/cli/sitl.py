@@ -26,7 +26,9 @@ def sitl_cmd(
         list[str] | None,
         typer.Option("--command", help="T:ROBOT:CODE[:P...]: a remote-control code at second T."),
     ] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the radio's drops.")] = 0,
+    seed: Annotated[
+        int, typer.Option("--seed", help="Seed of the radio's drops and of the nodes' scripts.")
+    ] = 0,
 ) -> None:
     """Run SCRIPT on N real nodes against simulated autopilots, over a simulated radio."""
     import bvm

@@ -111,11 +111,11 @@ class SimRobot:
 
     __slots__ = ("id", "runtime", "vehicle", "log", "home", "sensors")
 
-    def __init__(self, rid: int, runtime: RobotRuntime, vehicle: Vehicle) -> None:
+    def __init__(self, rid: int, runtime: RobotRuntime, vehicle: Vehicle, log: list[str]) -> None:
         self.id = rid
         self.runtime = runtime
         self.vehicle = vehicle
-        self.log: list[str] = []
+        self.log = log  # what its script logged
         self.home = (vehicle.x, vehicle.y)
         self.sensors = Sensors(lat=0.0, lon=0.0, alt=0.0, north=0.0, east=0.0)  # this tick's
 
@@ -150,7 +150,6 @@ class Simulation:
         self.radio = RadioModel(self._link_model(config), seed=config.seed)
         self.tick = 0
         self.on_log = on_log
-        self.bundle_sizes: list[int] = []  # Buzz block bytes of every bundle sent
         self.max_bundle = 0
         self.total_bundle = 0
         self.bundles = 0
@@ -174,8 +173,7 @@ class Simulation:
                 log_sink=self._sink(log),
                 max_ticks=config.max_ticks_per_step,
             )
-            robot = SimRobot(rid, runtime, vehicle)
-            robot.log = log
+            robot = SimRobot(rid, runtime, vehicle, log)
             self.robots[rid] = robot
             runtime.start(self.program, self._sensors(robot), config.globals)
 
