@@ -34,10 +34,11 @@ from bvm.errors import (
 )
 from bvm.program import Program
 from bvm.values import Closure, Table, Userdata
-from bvm.vm import VM
+from bvm.vm import VM, VMState
 
 __all__ = [
     "VM",
+    "VMState",
     "BuzzAsmError",
     "BvmError",
     "BuzzBudgetExceeded",

@@ -32,6 +32,10 @@ from bvm.values import Closure, to_buzz, to_python, type_name
 if TYPE_CHECKING:
     from bvm.stdlib.rng import MersenneTwister
 
+#: Where a VM is: nothing loaded, ready to run, in an entry that finished (`done`: the
+#: next entry makes it ready again), or stopped by an error until `reset_error`.
+VMState = Literal["no code", "ready", "done", "error"]
+
 _log = logging.getLogger("bvm")
 
 # Python frames allowed while a VM runs: about as many nested Buzz calls when translated,
@@ -186,7 +190,7 @@ class VM:
         self.budget.max_ticks = max_ticks
         self.budget.max_seconds = max_seconds
         self.program: Program | None = None
-        self.state = "no code"
+        self.state: VMState = "no code"
         self.error: BuzzError | None = None
         self.natives: list[Closure | None] = []
         # Per C-function id: (implementation, fixed arity or None); None for reserved ids.
