@@ -12,6 +12,10 @@ Every robot is the real thing but its vehicle and its radio:
   receive frames (0x90) to the robots in range, dropping each with the simulator's
   probability. So the bytes between nodes are the bytes on the air in the field.
 
+The vehicles hold their GPS fix until every node is up and talking to its autopilot, then
+all get it at once: nodes wait for a fix before their loop starts, so the swarm starts
+together however long each process took to start.
+
 Real time, real processes: runs are not reproducible bit for bit (that is the simulator's job).
 """
 
@@ -44,6 +48,12 @@ SERIAL_BASE = 0x0013A20000000000
 
 #: The vehicles are stepped (and the relay serviced) this often, seconds.
 STEP_S = 0.05
+
+#: Every node must be up (imports, autopilot heartbeat) within this long, seconds.
+STARTUP_S = 120.0
+
+#: After the nodes' run, how long they have to write their summaries, seconds.
+WIND_DOWN_S = 30.0
 
 
 @dataclass
@@ -156,7 +166,14 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
         for k, home in enumerate(_homes(cfg)):
             rid = k + 1
             ap, radio = open_pty(), open_pty()
-            vehicle = SimVehicle(cfg.profile, ap.master, home=home, seed=cfg.seed * 1000 + rid)
+            # The GPS fix is held back until every node is up (see the loop below).
+            vehicle = SimVehicle(
+                cfg.profile,
+                ap.master,
+                home=home,
+                seed=cfg.seed * 1000 + rid,
+                gps_fix_delay_s=math.inf,
+            )
             robots.append(
                 SitlRobot(rid, vehicle, ap, radio, FrameReader(1), cfg.out / f"robot{rid}")
             )
@@ -196,9 +213,18 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
         processes = [r.process for r in robots if r.process is not None]
         start = time.monotonic()
         last = start
-        deadline = start + cfg.seconds + 60.0  # start-up (GPS fix, imports) and wind-down
+        released: float | None = None
+        deadline = start + STARTUP_S
         while any(p.poll() is None for p in processes):
             now = time.monotonic()
+            if released is None and all(r.vehicle.bytes_received > 0 for r in robots):
+                # Every node is up and has spoken to its autopilot: all get their GPS fix
+                # now, so their loops, and their --seconds, start together however long
+                # each took to start (a loaded machine staggers them by seconds).
+                for r in robots:
+                    r.vehicle.gps_fix_delay_s = 0.0
+                released = now
+                deadline = now + cfg.seconds + WIND_DOWN_S
             if now > deadline:
                 for p in processes:
                     if p.poll() is None:
@@ -208,8 +234,8 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
                 r.vehicle.step(now - last)
             last = now
             relay.service()
-            if progress is not None:
-                progress(min(now - start, cfg.seconds), cfg.seconds)
+            if progress is not None and released is not None:
+                progress(min(now - released, cfg.seconds), cfg.seconds)
             time.sleep(STEP_S)
     finally:
         for r in robots:
