@@ -160,6 +160,12 @@ class VM:
     names starting with `_` belong to the translator's helpers and must not be touched.
     """
 
+    #: `set_neighbor_columns(ids, distances, azimuths)`: the fast `set_neighbors` for a host
+    #: that computes a whole swarm at once: the same neighbours as columns, every distance
+    #: and azimuth already a binary32 value, every id valid (0..65535) and every elevation 0.
+    #: Nothing is checked.
+    set_neighbor_columns: Callable[[list[int], list[float], list[float]], None]
+
     #: The generator behind `math.rng`, made by the library's installation at `load`.
     rng: MersenneTwister
 
@@ -231,6 +237,8 @@ class VM:
 
         self.net = Network(self)
         self.neighbors = Neighbors(self)
+        # Bound here, not wrapped in a method: every robot of a swarm calls it every tick.
+        self.set_neighbor_columns = self.neighbors.set_columns
         self.stigmergies = Stigmergies(self)
         self.swarms = Swarms(self)
 
@@ -480,14 +488,6 @@ class VM:
     def peer_count(self) -> int:
         """How many other robots this VM holds swarm memberships of (from their lists)."""
         return len(self.swarms.peers)
-
-    def set_neighbor_columns(
-        self, ids: list[int], distances: list[float], azimuths: list[float]
-    ) -> None:
-        """The fast `set_neighbors` for a host that computes a whole swarm at once: the
-        same neighbours as columns, every distance and azimuth already a binary32 value,
-        every id valid (0..65535) and every elevation 0. Nothing is checked."""
-        self.neighbors.set_columns(ids, distances, azimuths)
 
     def set_neighbors(self, entries: Iterable[tuple[int, float, float, float]]) -> None:
         """Replace this step's neighbors: (robot id, distance, azimuth, elevation) each,

@@ -26,7 +26,7 @@ from typing import Final, Literal, NamedTuple, get_args
 
 from fieldkit.robot import geo, polygon
 from fieldkit.robot.profiles import FailsafeAction, Profile
-from fieldkit.robot.script_api import Command, Sensors
+from fieldkit.robot.script_api import ON_GROUND, Command, Sensors
 
 #: How far ahead of the vehicle a setpoint may be, in seconds at the profile's top speed.
 CARROT_S = 1.0
@@ -116,7 +116,7 @@ class Supervisor:
             self._action_sent = False  # nothing reaches a silent autopilot: resend when back
             self._healthy = 0
             return None
-        if v.flying and v.battery_percent < fs.low_battery_percent:
+        if v.status != ON_GROUND and v.battery_percent < fs.low_battery_percent:
             self._trip(f"battery at {v.battery_percent:.0f}%", fs.on_low_battery)
         if self.failsafe is not None:
             if not self._action_sent:

@@ -33,7 +33,7 @@ from fieldkit.robot import geo
 from fieldkit.robot import neighbors as nb
 from fieldkit.robot.profiles import Profile, load_profile
 from fieldkit.robot.rc import RcCommand
-from fieldkit.robot.runtime import RobotRuntime
+from fieldkit.robot.runtime import RobotRuntime, ScriptStatus
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import ON_GROUND, Sensors
 from fieldkit.sim.radio import LinkModel, RadioModel
@@ -42,6 +42,8 @@ from fieldkit.vehicle.kinematics import Vehicle
 _log = logging.getLogger("fieldkit.sim")
 
 TICK_S = 0.1  # 10 Hz, ROSBuzz's BUZZRATE
+
+RUNNING = ScriptStatus.RUNNING
 
 #: The altitude a return to launch climbs to first, as ArduPilot's RTL_ALT default.
 RTL_ALT_M = 15.0
@@ -157,6 +159,9 @@ class Simulation:
         for c in config.commands:
             self._commands.setdefault(round(c.t / TICK_S), []).append(c)
         self.robots: dict[int, SimRobot] = {}
+        # Each robot's radio-in, bound once: a tick delivers thousands of bundles.
+        self._hear: dict[int, Callable[[int, nb.Heard, tuple[bytes, ...]], None]] = {}
+        self._heard: dict[int, nb.HeardTable] = {}
         rng = random.Random(f"layout:{config.seed}")
         side = max(1, math.ceil(math.sqrt(config.robots)))
         for k in range(config.robots):
@@ -175,6 +180,8 @@ class Simulation:
             )
             robot = SimRobot(rid, runtime, vehicle, log)
             self.robots[rid] = robot
+            self._hear[rid] = runtime.hear
+            self._heard[rid] = runtime.heard
             runtime.start(self.program, self._sensors(robot), config.globals)
 
     @staticmethod
@@ -231,10 +238,18 @@ class Simulation:
             # Where the sender was when it sent (its position in the shared local frame,
             # which is its bundle's GPS); one entry shared by every receiver: never modified.
             entry = (pos[0], pos[1], t)
-            for receiver in receivers:
-                robot = robots.get(receiver)
-                if robot is not None:
-                    robot.runtime.hear(src, entry, messages)
+            if messages:
+                for receiver in receivers:
+                    hear = self._hear.get(receiver)
+                    if hear is not None:
+                        hear(src, entry, messages)
+            else:
+                # Most bundles carry no message: only the position goes to the heard table
+                # (the runtime's fast path for a host delivering a swarm's bundles).
+                for receiver in receivers:
+                    heard = self._heard.get(receiver)
+                    if heard is not None:
+                        heard[src] = entry
         rcs: dict[int, RcCommand] = {c.robot: c for c in self._commands.get(t, ())}
         self.radio.set_positions({r.id: r.vehicle.position for r in robots.values()})
         # A robot's own vehicle moves only in its turn, after it stepped: so every robot's
@@ -253,7 +268,7 @@ class Simulation:
     def _neighbors(self, t: int) -> dict[int, nb.Columns]:
         """Each running robot's neighbours at tick t, for the whole swarm in one pass: from
         where the robot is to where each sender was when it sent."""
-        owners = [r for r in self.robots.values() if r.runtime.running]
+        owners = [r for r in self.robots.values() if r.runtime.status is RUNNING]
         columns = nb.columns(
             [r.runtime.heard for r in owners],
             [(r.vehicle.x, r.vehicle.y) for r in owners],
