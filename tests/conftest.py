@@ -13,10 +13,12 @@ or set HYPOTHESIS_EXPLORE=1 to draw fresh ones in the suite.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from hypothesis import settings
+from rigs import RIG_HOME, SimRig
 
 settings.register_profile("deterministic", derandomize=True)
 settings.register_profile("explore", derandomize=False)
@@ -26,3 +28,13 @@ settings.load_profile("explore" if os.environ.get("HYPOTHESIS_EXPLORE") else "de
 @pytest.fixture(autouse=True)
 def _isolated_cwd(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)
+
+
+@pytest.fixture
+def rig() -> Iterator[SimRig]:
+    """The solo's simulated ArduPilot and its link on a pty, GPS fixed: where a node starts."""
+    r = SimRig("solo", home=RIG_HOME, gps_fix_delay_s=0.0)
+    r.connect()
+    assert r.run_until(lambda: r.link.telemetry.gps_fix_type >= 3, 10.0)
+    yield r
+    r.close()

@@ -8,17 +8,16 @@ runs: telemetry in, script step, supervisor, MAVLink commands with their ACKs, o
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
 
 import pytest
-from rigs import SimRig
+from rigs import RIG_HOME, SimRig
 
 import bvm
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.node import Node
 from fieldkit.robot.rc import RcCommand
 
-HOME = (45.5049, -73.6133)
+HOME = RIG_HOME
 
 FLY = """
 function init() { BVMSTATE = "TURNEDOFF" }
@@ -35,15 +34,6 @@ function step() {
   log(BVMSTATE, " ", pose.position.altitude)
 }
 """
-
-
-@pytest.fixture
-def rig() -> Iterator[SimRig]:
-    r = SimRig("solo", home=HOME, gps_fix_delay_s=0.0)
-    r.connect()
-    assert r.run_until(lambda: r.link.telemetry.gps_fix_type >= 3, 10.0)
-    yield r
-    r.close()
 
 
 def make_node(rig: SimRig, src: str, lines: list[str], **globals_: object) -> Node:

@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from rigs import SimRig
+from rigs import RIG_HOME, SimRig
 
 import bvm
 from fieldkit.node.autopilot_port import MavlinkAutopilot
@@ -32,7 +31,7 @@ from fieldkit.robot import bundle as wirebundle
 from fieldkit.robot.profiles import load_profile
 from fieldkit.sim.simulator import SimConfig, Simulation
 
-HOME = (45.5049, -73.6133)
+HOME = RIG_HOME
 
 FLY = """
 function init() { BVMSTATE = "TURNEDOFF" }
@@ -70,15 +69,6 @@ def transitions(states: list[str | None]) -> list[tuple[int, str | None]]:
         if k == 0 or s != states[k - 1]:
             out.append((k, s))
     return out
-
-
-@pytest.fixture
-def rig() -> Iterator[SimRig]:
-    r = SimRig("solo", home=HOME, gps_fix_delay_s=0.0)
-    r.connect()
-    assert r.run_until(lambda: r.link.telemetry.gps_fix_type >= 3, 10.0)
-    yield r
-    r.close()
 
 
 def test_the_simulator_and_the_node_go_through_the_same_states(rig: SimRig, tmp_path: Path) -> None:

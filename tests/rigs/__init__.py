@@ -21,6 +21,9 @@ from fieldkit.vehicle.pty import open_pty
 from fieldkit.vehicle.sim.ardupilot import SimArduPilot
 from fieldkit.vehicle.sim.vehicle import SimVehicle
 
+#: Where the rigs' vehicles start (the `rig` fixture's home).
+RIG_HOME = (45.5049, -73.6133)
+
 
 class SimRig:
     """A `SimVehicle` and an `Autopilot` on the two ends of a pty, stepped in lockstep.
