@@ -234,9 +234,8 @@ class RobotRuntime:
 
     def neighbor_columns(self, sensors: Sensors) -> nb.Columns:
         """This robot's neighbours now, from its heard table (stale senders dropped)."""
-        return nb.columns([self.heard], [(sensors.east, sensors.north)], self.ticks, self.timeout)[
-            0
-        ]
+        here = (sensors.east, sensors.north)
+        return nb.columns([self.heard], [here], self.ticks, self.timeout)[0]
 
     def tick(
         self,

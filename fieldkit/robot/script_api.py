@@ -66,11 +66,6 @@ class Sensors:
     heartbeat_age_s: float = 0.0  # since the autopilot was last heard (0 in simulation)
     rc_override: bool = False  # the backup pilot has the vehicle
 
-    @property
-    def flying(self) -> bool:
-        """Whether the vehicle is off the ground (taking off, in the air or landing)."""
-        return self.status != ON_GROUND
-
 
 #: What a script can ask of its vehicle (`Command.kind`).
 CommandKind = Literal["takeoff", "land", "rtl", "arm", "disarm", "goto", "gimbal", "picture"]

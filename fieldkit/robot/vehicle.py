@@ -31,11 +31,6 @@ class Telemetry:
     rc_override: bool
     status: FlightStatus = ON_GROUND
 
-    @property
-    def flying(self) -> bool:
-        """Whether the vehicle is off the ground."""
-        return self.status != ON_GROUND
-
 
 class VehiclePort(Protocol):
     """What a robot's host needs of its vehicle backend."""

@@ -33,7 +33,7 @@ from fieldkit.robot import geo
 from fieldkit.robot import neighbors as nb
 from fieldkit.robot.profiles import Profile, load_profile
 from fieldkit.robot.rc import RcCommand
-from fieldkit.robot.runtime import RobotRuntime, ScriptStatus
+from fieldkit.robot.runtime import RobotRuntime
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import ON_GROUND, Sensors
 from fieldkit.sim.radio import LinkModel, RadioModel
@@ -42,8 +42,6 @@ from fieldkit.vehicle.kinematics import Vehicle
 _log = logging.getLogger("fieldkit.sim")
 
 TICK_S = 0.1  # 10 Hz, ROSBuzz's BUZZRATE
-
-RUNNING = ScriptStatus.RUNNING
 
 #: The altitude a return to launch climbs to first, as ArduPilot's RTL_ALT default.
 RTL_ALT_M = 15.0
@@ -268,7 +266,7 @@ class Simulation:
     def _neighbors(self, t: int) -> dict[int, nb.Columns]:
         """Each running robot's neighbours at tick t, for the whole swarm in one pass: from
         where the robot is to where each sender was when it sent."""
-        owners = [r for r in self.robots.values() if r.runtime.status is RUNNING]
+        owners = [r for r in self.robots.values() if r.runtime.running]
         columns = nb.columns(
             [r.runtime.heard for r in owners],
             [(r.vehicle.x, r.vehicle.y) for r in owners],

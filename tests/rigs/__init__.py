@@ -25,7 +25,35 @@ from fieldkit.vehicle.sim.vehicle import SimVehicle
 RIG_HOME = (45.5049, -73.6133)
 
 
-class SimRig:
+class _SteppedRig:
+    """What both rigs share: a simulated clock advanced by `tick()` in steps of `dt`."""
+
+    dt: float
+    now: float
+
+    def tick(self) -> None:
+        """One step of the vehicle and the link."""
+        raise NotImplementedError
+
+    def clock(self) -> float:
+        """The simulated time, seconds."""
+        return self.now
+
+    def run_for(self, seconds: float) -> None:
+        """Tick for `seconds` of simulated time."""
+        for _ in range(round(seconds / self.dt)):
+            self.tick()
+
+    def run_until(self, cond: Callable[[], bool], seconds: float) -> bool:
+        """Tick until `cond()` holds (True) or `seconds` of simulated time pass (False)."""
+        for _ in range(round(seconds / self.dt)):
+            if cond():
+                return True
+            self.tick()
+        return cond()
+
+
+class SimRig(_SteppedRig):
     """A `SimVehicle` and an `Autopilot` on the two ends of a pty, stepped in lockstep.
 
     The link's clock is the simulated time (`now`), so its deadlines, retries and heartbeat
@@ -62,10 +90,6 @@ class SimRig:
             self.pty.close()
             raise
 
-    def clock(self) -> float:
-        """The simulated time, seconds."""
-        return self.now
-
     def tick(self) -> None:
         """One step of the vehicle and one poll of the link, every byte delivered both ways."""
         self.sim.step(self.dt)
@@ -86,19 +110,6 @@ class SimRig:
                 f"(vehicle sent {self.sim.bytes_sent}, link read {self.link.bytes_received}; "
                 f"link sent {self.link.bytes_sent}, vehicle read {self.sim.bytes_received})"
             )
-
-    def run_for(self, seconds: float) -> None:
-        """Tick for `seconds` of simulated time."""
-        for _ in range(round(seconds / self.dt)):
-            self.tick()
-
-    def run_until(self, cond: Callable[[], bool], seconds: float) -> bool:
-        """Tick until `cond()` holds (True) or `seconds` of simulated time pass (False)."""
-        for _ in range(round(seconds / self.dt)):
-            if cond():
-                return True
-            self.tick()
-        return cond()
 
     def connect(self, rate_hz: float = 10.0, timeout_s: float = 10.0) -> None:
         """Wait for the heartbeat and get the streams going at `rate_hz`."""
@@ -122,7 +133,7 @@ class SimRig:
         self.close()
 
 
-class MemoryRig:
+class MemoryRig(_SteppedRig):
     """A `SimArduPilot` and an `AutopilotCore` passing bytes in memory, stepped in lockstep.
 
     A tick does what `SimRig.tick` does, minus the pty: the vehicle takes what the link wrote
@@ -145,10 +156,6 @@ class MemoryRig:
         self.sim = SimArduPilot(self.profile, **sim_options)
         self.link = AutopilotCore(profile=self.profile, clock=self.clock, **(link_options or {}))
 
-    def clock(self) -> float:
-        """The simulated time, seconds."""
-        return self.now
-
     def tick(self) -> None:
         """One step of the vehicle and one tick of the link, every byte delivered both ways."""
         self.sim.receive_data(self.link.data_to_send())
@@ -157,19 +164,6 @@ class MemoryRig:
         self.link.receive_data(self.sim.data_to_send())
         self.link.tick()
         self.sim.receive_data(self.link.data_to_send())
-
-    def run_for(self, seconds: float) -> None:
-        """Tick for `seconds` of simulated time."""
-        for _ in range(round(seconds / self.dt)):
-            self.tick()
-
-    def run_until(self, cond: Callable[[], bool], seconds: float) -> bool:
-        """Tick until `cond()` holds (True) or `seconds` of simulated time pass (False)."""
-        for _ in range(round(seconds / self.dt)):
-            if cond():
-                return True
-            self.tick()
-        return cond()
 
     def poll(self) -> None:
         """What `Autopilot.poll()` does between ticks: read what the vehicle sent, tick."""
