@@ -274,3 +274,18 @@ def test_a_goto_target_is_reached_within_the_profiles_hover_accuracy() -> None:
     assert sup.arrived(sensors(north=30.0 - near, east=40.0, alt=10.0, status=2))
     assert not sup.arrived(sensors(north=30.0 - 1.5 * accuracy, east=40.0, alt=10.0, status=2))
     assert not sup.arrived(sensors(north=30.0, east=40.0, alt=10.0 + 1.5 * accuracy, status=2))
+
+
+def test_set_globals_reach_the_global_code_and_win_over_its_defaults() -> None:
+    """`--set`: the global code sees the value (`isnil` defaults) and a plain assignment
+    does not override it, so `init()` always reads what the operator gave."""
+    src = """
+if (isnil(SHAPE)) { SHAPE = "P" }
+MARGIN = 20
+seen_in_global_code = MARGIN
+function init() { at_init = string.concat(SHAPE, ":", string.tostring(MARGIN)) }
+function step() {}
+"""
+    r = RobotRuntime(1, load_profile("solo"), geo.LocalFrame(*HOME))
+    assert r.start(bvm.compile_source(src), sensors(), {"SHAPE": "Y", "MARGIN": 5})
+    assert r.vm["at_init"] == "Y:5" and r.vm["seen_in_global_code"] == 20

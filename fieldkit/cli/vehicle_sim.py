@@ -24,38 +24,13 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from fieldkit.cli.errors import fail, usage_error
+from fieldkit.cli.errors import fail
+from fieldkit.cli.options import parse_home
 from fieldkit.robot.profiles import ProfileError, load_profile
 
 if TYPE_CHECKING:
     from fieldkit.vehicle.pty import PtyPair
     from fieldkit.vehicle.sim.vehicle import SimVehicle
-
-
-def _split_home(text: str) -> tuple[float, float, list[str]]:
-    """ "LAT,LON" -> (lat, lon, the two texts); ValueError when it is not two numbers."""
-    parts = text.split(",")
-    form = f"--home: expected LAT,LON in degrees such as 45.5,-73.6, got {text!r}"
-    if len(parts) != 2:
-        raise ValueError(form)
-    try:
-        return float(parts[0]), float(parts[1]), parts
-    except ValueError:
-        raise ValueError(form) from None
-
-
-def _check_home(lat: float, lon: float, parts: list[str]) -> tuple[float, float]:
-    """(lat, lon) if they are a place on Earth; ValueError naming the one that is not."""
-    if not (math.isfinite(lat) and -90.0 < lat < 90.0):
-        raise ValueError(f"--home: latitude must be between -90 and 90, got {parts[0].strip()}")
-    if not (math.isfinite(lon) and -180.0 <= lon <= 180.0):
-        raise ValueError(f"--home: longitude must be between -180 and 180, got {parts[1].strip()}")
-    return lat, lon
-
-
-def parse_home(text: str) -> tuple[float, float]:
-    """ "LAT,LON" in degrees -> (lat, lon); ValueError with the expected form otherwise."""
-    return _check_home(*_split_home(text))
 
 
 def _is_pty_request(port: str) -> bool:
@@ -79,8 +54,8 @@ def vehicle_sim_cmd(
         str | None,
         typer.Option(
             "--home",
-            help="Where the vehicle boots: LAT,LON in degrees (default: Polytechnique "
-            "Montreal, 45.5049,-73.6133).",
+            help="Where the vehicle boots: LAT,LON in degrees (default: fieldkit's home in "
+            "Montreal, 45.5017,-73.5673, geo.DEFAULT_HOME).",
         ),
     ] = None,
     baud: Annotated[int, typer.Option("--baud", help="Serial speed for a device path.")] = 57600,
@@ -107,14 +82,7 @@ def vehicle_sim_cmd(
     if home is None:
         home_ll = DEFAULT_HOME
     else:
-        try:  # not two numbers: the command line does not parse (exit 2)
-            split = _split_home(home)
-        except ValueError as e:
-            raise usage_error(str(e)) from None
-        try:  # two numbers but not a place (exit 1)
-            home_ll = _check_home(*split)
-        except ValueError as e:
-            raise fail(e) from None
+        home_ll = parse_home(home)
     try:
         prof = load_profile(profile)
     except (ProfileError, OSError) as e:

@@ -28,6 +28,10 @@ from dataclasses import dataclass
 EARTH_RADIUS_M = 6371000.0
 """Sphere radius used by ROSBuzz for every GPS <-> metres conversion."""
 
+DEFAULT_HOME = (45.5017, -73.5673)
+"""Where simulated robots start when no `--home LAT,LON` is given (Montreal, WGS84 degrees):
+the simulator's origin, the vehicle simulator's and SITL's home alike."""
+
 # The same factor as ROSBuzz's DEG2RAD macro, so that results agree to the last bit.
 _DEG2RAD = math.pi / 180.0
 

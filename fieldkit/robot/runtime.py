@@ -161,7 +161,8 @@ class RobotRuntime:
         globals_: Mapping[str, object] | None = None,
     ) -> bool:
         """Load `program` in a fresh VM, run its global code and `init()`; False (and the
-        robot in its safe state) if that fails. `globals_` are set before the global code.
+        robot in its safe state) if that fails. `globals_` are set before the global code
+        and again after it, before `init()`.
         Called again, it switches the robot to another program: the heard table, the
         supervisor and the tick count carry over."""
         if self.status is not ScriptStatus.IDLE:
@@ -172,10 +173,15 @@ class RobotRuntime:
         try:
             vm.load(program)
             self.api.install()
-            for name, value in (globals_ or {}).items():
+            given = dict(globals_ or {})
+            for name, value in given.items():
                 vm[name] = value
             self.api.before_step(sensors, [])
             vm.execute()
+            # Again after the global code: a value the operator set (`--set`) wins over the
+            # script's own default, whether it reads `if (isnil(X))` or assigns X outright.
+            for name, value in given.items():
+                vm[name] = value
             if vm.gload("init") is not None:
                 vm.call("init")
         except BuzzError as e:

@@ -47,7 +47,7 @@ TICK_S = 0.1  # 10 Hz, ROSBuzz's BUZZRATE
 RTL_ALT_M = 15.0
 
 #: Where the simulated field is (any point works; scripts see GPS around it).
-DEFAULT_ORIGIN = (45.5017, -73.5673, 0.0)
+DEFAULT_ORIGIN = (*geo.DEFAULT_HOME, 0.0)
 
 
 @contextlib.contextmanager

@@ -1,6 +1,6 @@
 """A simulated ArduPilot vehicle's protocol and flight, without I/O: bytes and time in, frames out.
 
-    sim = SimArduPilot(load_profile("solo"), home=(45.5049, -73.6133))
+    sim = SimArduPilot(load_profile("solo"), home=(45.5017, -73.5673))
     sim.receive_data(bytes_from_the_gcs)           # COMMAND_LONG, SET_POSITION_TARGET...
     sim.step(0.1)                                  # physics by 0.1 s, telemetry when due
     write(sim.data_to_send())                      # HEARTBEAT, streams, ACKs
@@ -51,14 +51,12 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
 
 from fieldkit.errors import FieldkitError
+from fieldkit.robot.geo import DEFAULT_HOME as DEFAULT_HOME
 from fieldkit.robot.geo import LocalFrame
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.script_api import IN_AIR, LANDING, ON_GROUND, TAKING_OFF
 from fieldkit.vehicle.kinematics import Vehicle
 from fieldkit.vehicle.mavlink import FrameReader, new_codec
-
-DEFAULT_HOME = (45.5049, -73.6133)
-"""Where a simulated vehicle boots when no home is given (lat, lon): Polytechnique Montréal."""
 
 # The logger keeps its old name: `fieldkit vehicle-sim` shows this logger's lines.
 _log = logging.getLogger("fieldkit.vehicle_sim")

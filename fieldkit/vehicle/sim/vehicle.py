@@ -1,7 +1,7 @@
 """`SimVehicle`: the simulated ArduPilot (`SimArduPilot`) on a pty, a serial port or a URL.
 
     pty = open_pty()                                   # or any pymavlink URL: "tcpin:0.0.0.0:5760"
-    sim = SimVehicle(load_profile("solo"), pty.master, home=(45.5049, -73.6133))
+    sim = SimVehicle(load_profile("solo"), pty.master, home=(45.5017, -73.5673))
     ap = Autopilot(pty.slave_path, profile=...)        # the node's link, on the other end
     sim.step(0.1)                                      # link serviced, physics by 0.1 s
 
