@@ -28,7 +28,10 @@ from typing import Any, Final, Literal, NamedTuple
 import bvm
 from bvm.errors import BuzzError
 from bvm.values import Table, f32, format_value, type_name
-from fieldkit.robot import geo, polygon
+
+# Imported with the API, never inside a tick: the first `voronoi` call used to import
+# scipy (250-310 ms) in the middle of a 100 ms tick.
+from fieldkit.robot import geo, polygon, shapes, voronoi
 
 #: storegoal refuses goals farther than this (ROSBuzz's rule, docs/rosbuzz.md#limits).
 MAX_GOAL_DISTANCE_M = 250.0
@@ -140,6 +143,8 @@ class ScriptAPI:
             ("load_graph", self._load_graph),
         ):
             vm.register(name, func)
+        if self.graph_loader is None:
+            shapes.graph_files()  # read now: `load_graph` in a tick must open no file
         vm["V_TYPE"] = self.vehicle_type
         vm["TARGET_ALTITUDE"] = float(self.takeoff_altitude)
         vm["ROBOTS"] = self.robots
@@ -301,8 +306,6 @@ class ScriptAPI:
         while t[k] is not None:
             sites.append(_point(t[k], f"voronoi(t)[{k}]"))
             k += 1
-        from fieldkit.robot import voronoi
-
         if len(boundary) < 3:
             return None
         # Scripts usually hand over a hull already (either way round): Qhull only if not.
@@ -337,8 +340,6 @@ class ScriptAPI:
             )
         if self.graph_loader is not None:
             return self.graph_loader(name)
-        from fieldkit.robot import shapes
-
         try:
             return shapes.graph_table(name)
         except (OSError, ValueError) as e:

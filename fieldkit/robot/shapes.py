@@ -186,25 +186,49 @@ def available_letters(graph_dir: str | Path | None = None) -> list[str]:
     return sorted(p.stem for p in Path(graph_dir or GRAPH_DIR).glob("*.graph"))
 
 
+def graph_files(graph_dir: str | Path | None = None) -> dict[str, list[GraphNode] | GraphError]:
+    """Every `.graph` file of `graph_dir` (default: the shipped ones), read and parsed once:
+    a robot reads them at start, so `load_graph` in a tick opens no file. A file that does
+    not parse keeps its error, raised when a shape uses it."""
+    return _read_dir(str(Path(graph_dir or GRAPH_DIR).resolve()))
+
+
+@lru_cache(maxsize=8)
+def _read_dir(graph_dir: str) -> dict[str, list[GraphNode] | GraphError]:
+    out: dict[str, list[GraphNode] | GraphError] = {}
+    for path in sorted(Path(graph_dir).glob("*.graph")):
+        try:
+            out[path.stem] = renumber(read_graph(path))
+        except GraphError as e:
+            out[path.stem] = e
+    return out
+
+
+def _graph(files: dict[str, list[GraphNode] | GraphError], name: str) -> list[GraphNode]:
+    got = files[name]
+    if isinstance(got, GraphError):
+        raise got
+    return got
+
+
 @lru_cache(maxsize=64)
 def _compose_cached(name: str, graph_dir: str) -> tuple[GraphNode, ...]:
     directory = Path(graph_dir)
-    whole = directory / f"{name}.graph"
-    if whole.is_file():  # a hand-made multi-letter graph takes precedence
-        return tuple(renumber(read_graph(whole)))
+    files = graph_files(graph_dir)
+    if name in files:  # a hand-made multi-letter graph takes precedence
+        return tuple(_graph(files, name))
     if not name:
         raise GraphError("empty shape name")
     out: list[GraphNode] = []
     placed: dict[int, Point] = {}  # label -> absolute position, all letters so far
     previous_root = -1  # label of the previous letter's root
     for letter in name:
-        path = directory / f"{letter}.graph"
-        if not path.is_file():
+        if letter not in files:
             raise GraphError(
                 f"shape {name!r}: no graph for letter {letter!r} in {directory} "
-                f"(available: {', '.join(available_letters(directory)) or 'none'})"
+                f"(available: {', '.join(sorted(files)) or 'none'})"
             )
-        nodes = renumber(read_graph(path))
+        nodes = _graph(files, letter)
         rel = node_positions(nodes)
         base = len(out)
         min_north = min(p[0] for p in rel.values())
