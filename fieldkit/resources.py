@@ -51,10 +51,12 @@ def find_script(path: str | Path) -> Path:
     # A relative path that names no file from the working directory is looked up among the
     # shipped scripts, so `task_allocation.bzz` or `examples/hello.bzz` work from anywhere;
     # otherwise the path comes back unchanged and opening it reports the missing file.
+    # `buzz_scripts/X.bzz`, as the README and docs write it, works outside the checkout too.
     given = Path(path)
     if given.exists() or given.is_absolute():
         return given
-    bundled = script_dir() / given
+    inside = given.parts[1:] if given.parts[:1] == ("buzz_scripts",) else given.parts
+    bundled = script_dir().joinpath(*inside) if inside else given
     return bundled if bundled.is_file() else given
 
 

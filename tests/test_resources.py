@@ -24,6 +24,8 @@ def test_a_bare_name_is_the_shipped_script(tmp_path: Path, monkeypatch: pytest.M
     shipped = resources.find_script("task_allocation.bzz")
     assert shipped == resources.script_dir() / "task_allocation.bzz"
     assert resources.find_script("examples/hello.bzz") == resources.example_dir() / "hello.bzz"
+    # As the README writes it, from outside the checkout:
+    assert resources.find_script("buzz_scripts/task_allocation.bzz") == shipped
 
 
 def test_a_local_file_wins_and_a_missing_one_stays_as_given(
