@@ -25,6 +25,7 @@ from bvm import translate as _translate
 from bvm.budget import Budget, BudgetTimeout
 from bvm.errors import BuzzBudgetExceeded, BuzzError
 from bvm.interp import Halt, interpret, recorded_pcs
+from bvm.opcodes import Op
 from bvm.program import Program
 from bvm.translate import DEFAULT_OPTIONS, TranslateOptions
 from bvm.values import Closure, to_buzz, to_python, type_name
@@ -53,6 +54,37 @@ class _NilBuiltins(dict):
 
     def __missing__(self, key: Any) -> None:
         return None
+
+
+def _declared_arities(program: Program, addr: int, n_actrec: int) -> tuple[list[int], bool]:
+    """The argument counts to translate the function at `addr` for, likeliest first, and
+    whether the first that translates is enough (else: translate every one).
+
+    Buzz bytecode does not record a function's parameters. A call's slots are the captured
+    record (`n_actrec`: `self` alone for a named function), then the arguments, then the
+    locals the function declares, each with `pushnil; lstore K`, K the next slot: the first
+    declaration gives the count (else, a parameter set to nil: the highest slot read). A
+    function without locals reads only its parameters: the highest slot it reads, or more."""
+    try:
+        instrs = _translate.discover(program, addr)
+    except _translate.NotStructured:
+        return [], True
+    highest = 0
+    declared: int | None = None
+    previous: Op | None = None
+    for ins in instrs:
+        if ins.op is Op.LLOAD or ins.op is Op.LSTORE:
+            k = ins.int_arg
+            if ins.op is Op.LSTORE and previous is Op.PUSHNIL and declared is None and k > highest:
+                declared = max(0, k - n_actrec)
+            highest = max(highest, k)
+        previous = ins.op
+    read = max(0, highest + 1 - n_actrec)
+    if declared is not None:
+        return ([declared] if declared == read else [declared, read]), True
+    # Trailing parameters a function never reads leave no trace: a listener may read only
+    # `value` of (topic, value, sender). Callbacks take at most three: translate those too.
+    return list(range(read, max(read, 3) + 1)), False
 
 
 class Entry:
@@ -102,6 +134,9 @@ class Entry:
     def for_call(self, args: tuple) -> Callable[..., Any]:
         """The callable for this many arguments, specialized on these arguments' types."""
         f = self.by_arity.get(len(args))
+        if f is None and self.vm.prepared:  # translate nothing after `prepare`
+            f = self.general_by_arity.get(len(args)) or self._interpreted()
+            self.by_arity[len(args)] = f
         if f is None:
             spec = _translate.param_types(args)
             if self.interpret_only or all(t == _translate.ANY for t in spec):
@@ -125,7 +160,7 @@ class Entry:
     def general(self, nargs: int) -> Callable[..., Any]:
         """The unspecialized callable for `nargs` arguments: translated, else interpreted."""
         f = self.general_by_arity.get(nargs)
-        if f is None and self.interpret_only:
+        if f is None and (self.interpret_only or self.vm.prepared):
             f = self.general_by_arity[nargs] = self._interpreted()
         if f is None:
             try:
@@ -148,6 +183,7 @@ class Entry:
         def run(closure: Closure, *args: Any) -> Any:
             return interpret(vm, addr, [*closure.actrec, *args])
 
+        run.interpreted = True  # type: ignore[attr-defined]  # what `prepare` asks
         return run
 
 
@@ -196,6 +232,7 @@ class VM:
         self.budget.max_ticks = max_ticks
         self.budget.max_seconds = max_seconds
         self.program: Program | None = None
+        self.prepared = False  # see `prepare`: no translation after it
         self.state: VMState = "no code"
         self.error: BuzzError | None = None
         self.natives: list[Closure | None] = []
@@ -267,6 +304,7 @@ class VM:
         self._native_impls.clear()
         self._entries.clear()
         self._toplevel = None
+        self.prepared = False
         self._new_swarm_state()
         self.state = "ready"
         self.error = None
@@ -311,6 +349,40 @@ class VM:
         self._run(run)
         if self.state == "ready":
             self.state = "done"
+
+    def prepare(self) -> int:
+        """Translate now every function the loaded program can create, and nothing later.
+
+        A robot calls this at start (after the global code and `init()`): a function's first
+        call then compiles nothing, which on a companion computer cost a 100 ms tick its
+        deadline (ticks of 50-110 ms spent translating, here). Translations are general (not
+        specialized on the first call's argument types) for the argument count the function
+        declares; a call the translations did not foresee (another count, a closure made
+        another way) runs on the interpreter, which gives the same results. Returns how many
+        functions were translated; a VM that does not translate just stops translating."""
+        self._require_program()
+        program = self.program
+        assert program is not None
+        done: set[tuple[int, int]] = set()
+        count = 0
+        while True:  # translating a function binds the entries of the lambdas it creates
+            todo = [e for key, e in list(self._entries.items()) if key not in done]
+            if not todo:
+                break
+            for e in todo:
+                done.add((e.addr, e.n_actrec))
+                if e.interpret_only:
+                    continue
+                arities, first_only = _declared_arities(program, e.addr, e.n_actrec)
+                for nargs in arities:
+                    f = e.general(nargs)
+                    e.by_arity.setdefault(nargs, f)
+                    if not getattr(f, "interpreted", False):
+                        count += 1
+                        if first_only:
+                            break
+        self.prepared = True
+        return count
 
     # ------------------------------------------------------------ host interface
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gc
 import re
+from pathlib import Path
 
 import pytest
 
@@ -589,3 +590,77 @@ def test_comparisons_with_nil_of_every_kind_of_value() -> None:
     )
     lines, _ = both(src, "all")
     assert lines == ["01", "01", "01", "01", "01", "10"]
+
+
+# ---------------------------------------------------------------- translating ahead
+
+CONFORMANCE = sorted((Path(__file__).parent / "conformance").glob("*.bzz"))
+
+
+def run_prepared(program: bvm.Program, call: str | None = None) -> tuple:
+    """(log lines, outcome, translations after prepare) of a VM translated ahead: before
+    its global code runs, so that the functions the global code calls are the prepared
+    translations."""
+    import bvm.vm as vm_module
+
+    lines: list[str] = []
+    vm = bvm.VM(max_ticks=100_000)
+    late: list[int] = []
+    real = vm_module._translate.translate
+    try:
+        vm.load(program)
+        vm.register("log", lambda *a: lines.append("".join(map(format_value, a))))
+        vm.prepare()
+
+        def counting(*args: object, **kwargs: object) -> object:
+            late.append(1)
+            return real(*args, **kwargs)  # type: ignore[arg-type]
+
+        vm_module._translate.translate = counting  # type: ignore[assignment]
+        vm.execute()  # the global code itself is translated on its first run
+        late.clear()
+        result = vm.call(call) if call else None
+        return lines, ("ok", result), len(late)
+    except bvm.BuzzError as e:
+        return lines, ("error", e.message, e.offset), len(late)
+    finally:
+        vm_module._translate.translate = real
+
+
+LISTENERS = """
+seen = {}
+function on(topic, value, sender) { seen[sender] = value }
+function main() {
+  neighbors.listen("a", on)
+  neighbors.listen("b", function(topic, value, sender) { seen.b = value })
+  var t = {.1 = 3, .2 = 4}
+  foreach(t, function(k, v) { seen[k] = v })
+  var total = reduce(t, function(k, v, acc) { return acc + v }, 0)
+  var m = map(t, function(k, v) { return v * 2 })
+  var f = filter(t, function(k, v) { return v > 3 })
+  log(total, size(m), size(f))
+  return total
+}
+"""
+
+
+def test_a_prepared_vm_translates_nothing_later_and_agrees() -> None:
+    """`VM.prepare` translates every function a script can create, callbacks included
+    (trailing parameters they never read too); later calls compile nothing."""
+    program = bvm.compile_source(LISTENERS, "t.bzz")
+    lines, outcome, late = run_prepared(program, "main")
+    assert late == 0
+    ref_lines, ref_outcome = run(program, False, "main")
+    assert (lines, outcome) == (ref_lines, ref_outcome) and outcome == ("ok", 7)
+
+
+@pytest.mark.parametrize("script", CONFORMANCE, ids=[s.stem for s in CONFORMANCE])
+def test_the_conformance_corpus_runs_the_same_translated_ahead(script: Path) -> None:
+    """Translations made ahead (general, for guessed argument counts) give what the
+    interpreter gives, on every conformance script."""
+    try:
+        program = bvm.compile_file(script, include_dirs=[str(script.parent / "include")])
+    except bvm.BuzzCompileError:
+        pytest.skip("a compile-error case")
+    lines, outcome, _ = run_prepared(program)
+    assert (lines, outcome) == run(program, False)

@@ -101,10 +101,14 @@ class RobotRuntime:
         max_ticks: int | None = None,
         max_seconds: float | None = None,
         graph_loader: Callable[[str], bvm.Table] | None = None,
+        translate_ahead: bool = False,
     ) -> None:
         """`seed` seeds the VM's and the script API's generators (each robot its own);
         `max_ticks` / `max_seconds` bound one step of a runaway script (instructions, for
-        a reproducible simulator; wall time, for a node that must keep its loop)."""
+        a reproducible simulator; wall time, for a node that must keep its loop);
+        `translate_ahead` translates the whole script at start (`bvm.VM.prepare`), so that
+        no tick compiles: a node's choice (its ticks have deadlines), not the simulator's
+        (translations specialized on first calls run a big swarm faster)."""
         self.id = robot_id
         self.profile = profile
         self.frame = frame
@@ -113,6 +117,7 @@ class RobotRuntime:
         self.max_ticks = max_ticks
         self.max_seconds = max_seconds
         self.graph_loader = graph_loader
+        self.translate_ahead = translate_ahead
         self.supervisor = Supervisor(profile, frame)
         self.heard: nb.HeardTable = {}
         self.timeout = nb.timeout_ticks(profile.node.loop_rate_hz)
@@ -184,6 +189,8 @@ class RobotRuntime:
                 vm[name] = value
             if vm.gload("init") is not None:
                 vm.call("init")
+            if self.translate_ahead:
+                vm.prepare()
         except BuzzError as e:
             self.fail(e)
         return self.running
