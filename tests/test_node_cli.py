@@ -148,6 +148,16 @@ def test_a_set_that_does_not_parse_is_a_usage_error(tmp_path: Path) -> None:
     assert result.exit_code == 2 and "--set '9X=1'" in errors(result.stderr)[0]
 
 
+@pytest.mark.parametrize(
+    ("option", "value"), [("--seconds", "0"), ("--seconds", "nan"), ("--connect-timeout", "-1")]
+)
+def test_a_duration_must_be_positive(tmp_path: Path, option: str, value: str) -> None:
+    result = runner.invoke(app, node("--profile", "solo", "--script", script(tmp_path),
+                                     option, value))  # fmt: skip
+    assert result.exit_code == 1, result.output
+    assert errors(result.stderr)[0].startswith(f"error: {option} must be > 0")
+
+
 def test_a_profile_without_a_radio_says_what_to_write(tmp_path: Path) -> None:
     # Without its [radio] and [radio.id_map] tables (up to the next table, [robot_id]).
     text, n = re.subn(r"\[radio\].*?(?=\[robot_id\])", "", solo_text(), flags=re.S)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import re
 import signal
 import socket
@@ -155,6 +156,10 @@ def node_cmd(
     except ConfigError as e:
         raise usage_error(str(e)) from None
     globals_ = parse_sets(sets)
+    if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+        raise fail(f"--seconds must be > 0, got {seconds:g}")
+    if not (math.isfinite(connect_timeout) and connect_timeout > 0):
+        raise fail(f"--connect-timeout must be > 0, got {connect_timeout:g}")
     try:
         prof = load_profile(profile)
     except (ProfileError, OSError) as e:
