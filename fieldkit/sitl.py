@@ -206,8 +206,8 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
             ]
             for c in cfg.commands:
                 if c.robot == r.id:
-                    # The node is one robot: T:CODE, with the parameters (a waypoint's).
-                    argv += ["--command", c.text(with_robot=False)]
+                    # Each node gets its own robot's commands, in the one T:ROBOT:CODE form.
+                    argv += ["--command", c.text()]
             r.log = (r.out / "log.txt").open("wb")
             r.process = subprocess.Popen(argv, stdout=r.log, stderr=subprocess.STDOUT)
         processes = [r.process for r in robots if r.process is not None]

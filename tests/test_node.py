@@ -71,7 +71,7 @@ def test_the_node_flies_the_script(rig: SimRig) -> None:
     assert summary["final_state"] == "GO"
     assert summary["ticks"] == 400 and summary["errors"] == []
     assert summary["mavlink_messages"] > 100 and summary["mavlink_bad_frames"] == 0
-    assert lines[0].startswith("[3] TURNEDOFF")
+    assert lines[0].startswith("TURNEDOFF")  # unstamped: `out` (a NodeLog) stamps it
 
 
 def test_a_script_error_holds_the_vehicle_and_the_node_goes_on(rig: SimRig) -> None:

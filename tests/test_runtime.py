@@ -172,8 +172,8 @@ def test_a_waypoint_command_carries_its_parameters() -> None:
     c = RcCommand.parse("1:1:16:7:45.6:-73.5:12")
     r.tick(sensors(), c)
     assert r.vm["got"] == 7 and r.vm["lat"] == pytest.approx(45.6, abs=1e-5)
-    # SITL hands it on to a node in the node's form, parameters included.
-    assert RcCommand.parse(c.text(with_robot=False), robot=1) == c
+    # SITL hands it on to a node in the same T:ROBOT:CODE form, parameters included.
+    assert RcCommand.parse(c.text()) == c
 
 
 def test_the_bundle_budget_is_the_profiles() -> None:

@@ -3,22 +3,31 @@
 from __future__ import annotations
 
 import logging
+import math
 import re
+import signal
 import socket
-import sys
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 import bvm
 from bvm.errors import BuzzCompileError
 from fieldkit import resources
-from fieldkit.cli.errors import fail, usage_error
+from fieldkit.cli.errors import error_text, fail, usage_error
+from fieldkit.cli.options import SetValue, parse_sets
 from fieldkit.cli.output import out_dir, write_json
 
 if TYPE_CHECKING:
+    from fieldkit.node.log import NodeLog
+    from fieldkit.node.node import Node
+    from fieldkit.radio.base import RadioLink
     from fieldkit.robot.profiles import Profile
+    from fieldkit.robot.rc import RcCommand
 
 
 def robot_id_from(profile: Profile, given: int | None) -> int:
@@ -38,6 +47,57 @@ def robot_id_from(profile: Profile, given: int | None) -> int:
     raise fail(f"robot_id.source = {rid.source!r}: give --robot-id")
 
 
+#: What a profile's [radio] table looks like, for a profile whose radio is missing or wrong.
+RADIO_HINT = (
+    "hint: the node's radio is the profile's [radio] table, e.g. kind = \"xbee\", "
+    'port = "/dev/ttyUSB0", baud = 230400, api_mode = 2 (the shipped solo profile has one); '
+    'kind = "udp" for a WiFi mesh'
+)
+
+
+def open_node_radio(
+    prof: Profile, radio: str | None, rid: int, say: Callable[[str], None]
+) -> RadioLink | None:
+    """The radio `--radio` names (a URL, or `none`), else the profile's; fail if it won't open."""
+    from fieldkit.radio import from_profile, open_radio
+
+    if radio == "none":
+        say("radio: none (--radio none): this robot hears no one and no one hears it")
+        return None
+    settings = prof.radio
+    others = "give --radio URL, or --radio none to run without a radio"
+    if radio is not None:
+        where, hint = radio, ""
+    elif settings.kind == "udp":
+        where = f"udp port {settings.udp_port}"
+        hint = (
+            f"\nhint: the {prof.name} profile's [radio] names this port: set "
+            f"radio.udp_port in the profile, {others}"
+        )
+    else:
+        where = settings.port
+        hint = (
+            f"\nhint: the {prof.name} profile's [radio] names this XBee: plug it in, set "
+            f"radio.port in the profile, {others}"
+        )
+    try:
+        link = open_radio(radio, rid) if radio is not None else from_profile(settings, rid)
+    except (OSError, ValueError) as e:
+        raise fail(f"radio {where}: {_reason(e)}{hint}") from None
+    say(f"radio: {where}" + ("" if radio is not None else f" ({prof.name} profile)"))
+    return link
+
+
+def _reason(e: BaseException) -> str:
+    """Why a port did not open, without pyserial's repetitions of the path."""
+    cause = e.__cause__ or e.__context__
+    if isinstance(cause, OSError) and cause.strerror:
+        return cause.strerror  # pyserial wraps the OSError of open() in its own
+    if isinstance(e, OSError) and e.strerror:
+        return e.strerror
+    return str(e)
+
+
 def node_cmd(
     profile: Annotated[str, typer.Option("--profile", help="Device profile (name or .toml).")],
     script: Annotated[Path, typer.Option("--script", help="The behavior, a .bzz or .bo.")],
@@ -46,7 +106,11 @@ def node_cmd(
     ] = None,
     radio: Annotated[
         str | None,
-        typer.Option("--radio", help="Radio URL (xbee serial, udp://...) or none."),
+        typer.Option(
+            "--radio",
+            help="Radio URL (an XBee: serial:///dev/ttyUSB0?baud=230400&api=2; udp://HOST:PORT), "
+            "or none (default: the radio the profile names).",
+        ),
     ] = None,
     robot_id: Annotated[int | None, typer.Option("--robot-id", help="This robot's id.")] = None,
     seconds: Annotated[
@@ -58,7 +122,20 @@ def node_cmd(
     ] = None,
     command: Annotated[
         list[str] | None,
-        typer.Option("--command", help="T:CODE[:P...]: a remote-control code at second T."),
+        typer.Option(
+            "--command",
+            help="T:ROBOT:CODE[:P...]: a remote-control code at second T; ROBOT must be "
+            "this robot's id (22 takeoff, 21 land, 900 task allocation, 901 coverage, "
+            "16 waypoint).",
+        ),
+    ] = None,
+    sets: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            help="NAME=VALUE: set script global NAME before init() (repeatable; an int, "
+            "else a float, else a string).",
+        ),
     ] = None,
     connect_timeout: Annotated[
         float, typer.Option("--connect-timeout", help="Seconds to wait for the autopilot.")
@@ -68,25 +145,30 @@ def node_cmd(
     ] = 0,
 ) -> None:
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
-    from fieldkit.node.autopilot_port import MavlinkAutopilot
-    from fieldkit.node.node import Node
+    from fieldkit.errors import ConfigError
+    from fieldkit.node.log import NodeLog
     from fieldkit.robot.profiles import ProfileError, load_profile
-    from fieldkit.vehicle.autopilot import AutopilotError
-    from fieldkit.vehicle.link import Autopilot
+    from fieldkit.robot.rc import RcCommand
 
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    # Everything that can be checked without a device is, before any port is opened.
+    try:
+        commands = [RcCommand.parse(c) for c in command or []]
+    except ConfigError as e:
+        raise usage_error(str(e)) from None
+    globals_ = parse_sets(sets)
+    if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+        raise fail(f"--seconds must be > 0, got {seconds:g}")
+    if not (math.isfinite(connect_timeout) and connect_timeout > 0):
+        raise fail(f"--connect-timeout must be > 0, got {connect_timeout:g}")
     try:
         prof = load_profile(profile)
     except (ProfileError, OSError) as e:
-        raise fail(e) from None
+        hint = f"\n{RADIO_HINT}" if re.search(r": radio[.:]", str(e)) else ""
+        raise fail(f"{error_text(e)}{hint}") from None
     rid = robot_id_from(prof, robot_id)
-    from fieldkit.errors import ConfigError
-    from fieldkit.robot.rc import RcCommand
-
-    try:
-        commands = [RcCommand.parse(c, robot=rid) for c in command or []]
-    except ConfigError as e:
-        raise usage_error(str(e)) from None
+    for text, c in zip(command or [], commands, strict=True):
+        if c.robot != rid:
+            raise fail(f"--command {text!r} is for robot {c.robot}, this node is robot {rid}")
     script = resources.find_script(script)
     try:
         if script.suffix == ".bo":
@@ -97,49 +179,138 @@ def node_cmd(
         raise fail(e, script) from None
     except OSError as e:
         raise fail(f"{script}: cannot read: {e.strerror or e}") from None
+    if out is not None:
+        out_dir(out)  # now, not after an hour's run
+    say = NodeLog(rid)
+    # The radio first: a missing XBee fails at once, not after the wait for the autopilot.
+    link_radio = open_node_radio(prof, radio, rid, say)
     try:
-        link = Autopilot.from_profile(prof, autopilot)
-        link.wait_heartbeat(connect_timeout)
-        link.request_streams(prof.node.loop_rate_hz)
-        t = link.wait_gps_fix(prof.autopilot.gps_fix_timeout_s)
-    except AutopilotError as e:
-        raise fail(e) from None
-    home = t.home if t.home is not None else (t.lat or 0.0, t.lon or 0.0, 0.0)
-    home = (home[0], home[1], 0.0)
-    link_radio = None
-    if radio is not None and radio != "none":
-        from fieldkit.radio import open_radio
-
-        try:
-            link_radio = open_radio(radio, rid)
-        except (OSError, ValueError) as e:
-            raise fail(f"--radio {radio}: {e}") from None
-
-    def say(text: str) -> None:
-        sys.stdout.write(text + "\n")
-        sys.stdout.flush()
-
-    node = Node(
-        prof,
-        program,
-        rid,
-        MavlinkAutopilot(link, home),
-        link_radio,
-        home=home,
-        commands=commands,
-        out=say,
-        seed=seed,
-    )
-    try:
-        node.run(seconds)
-    except KeyboardInterrupt:
-        pass
+        _run(
+            prof,
+            script,
+            program,
+            rid,
+            autopilot=autopilot,
+            radio=link_radio,
+            connect_timeout=connect_timeout,
+            seconds=seconds,
+            commands=commands,
+            globals_=globals_,
+            seed=seed,
+            out=out,
+            say=say,
+        )
     finally:
-        node.runtime.destroy()
-        link.close()
         if link_radio is not None:
             link_radio.close()
+
+
+def _run(
+    prof: Profile,
+    script: Path,
+    program: bvm.Program,
+    rid: int,
+    *,
+    autopilot: str | None,
+    radio: RadioLink | None,
+    connect_timeout: float,
+    seconds: float | None,
+    commands: list[RcCommand],
+    globals_: dict[str, SetValue],
+    seed: int,
+    out: Path | None,
+    say: NodeLog,
+) -> None:
+    """Connect to the autopilot, run the loop, stop cleanly; exit 1 if the script is failed."""
+    from fieldkit.node.autopilot_port import MavlinkAutopilot
+    from fieldkit.node.node import Node
+    from fieldkit.vehicle.autopilot import AutopilotError
+    from fieldkit.vehicle.link import Autopilot
+
+    with _logging_to(say):
+        try:
+            link = Autopilot.from_profile(prof, autopilot)
+        except AutopilotError as e:
+            raise fail(e) from None
+        try:
+            try:
+                say(f"autopilot: waiting up to {connect_timeout:g} s for a heartbeat on {link.url}")
+                link.wait_heartbeat(connect_timeout)
+                link.request_streams(prof.node.loop_rate_hz)
+                fix_s = prof.autopilot.gps_fix_timeout_s
+                say(f"autopilot: waiting up to {fix_s:g} s for a GPS fix")
+                t = link.wait_gps_fix(fix_s)
+            except AutopilotError as e:
+                raise fail(e) from None
+            home = t.home if t.home is not None else (t.lat or 0.0, t.lon or 0.0, 0.0)
+            home = (home[0], home[1], 0.0)
+            until = "until stopped" if seconds is None else f"for {seconds:g} s"
+            say(f"starting {script} at {prof.node.loop_rate_hz:g} Hz {until}, home "
+                f"{home[0]:.7f},{home[1]:.7f}")  # fmt: skip
+            node = Node(
+                prof,
+                program,
+                rid,
+                MavlinkAutopilot(link, home),
+                radio,
+                home=home,
+                commands=commands,
+                out=say,
+                seed=seed,
+                globals_=globals_,
+            )
+            with _stop_on_signals(node):
+                node.run(seconds)
+            failed = node.finish()
+        finally:
+            link.close()
+    why = "stopped by a signal" if node.stopping else "run over"
+    say(f"{why}: {node.runtime.ticks} ticks, {node.late_ticks} late")
     if out is not None:
-        write_json(out_dir(out) / "summary.json", node.summary())
-    if node.runtime.error is not None:
-        typer.echo(node.runtime.error, err=True)
+        write_json(out / "summary.json", node.summary())
+    if failed is not None:
+        raise fail(
+            f"{failed}\nrobot {rid}'s script stopped at this error and the robot ended the run "
+            f"in its failsafe (on_script_error = {prof.failsafe.on_script_error})"
+        )
+
+
+@contextmanager
+def _logging_to(say: NodeLog) -> Iterator[None]:
+    """Route fieldkit's `logging` (runtime, autopilot link) through the node's one writer."""
+    root = logging.getLogger("fieldkit")
+    ours = logging.getLogger("fieldkit.node")  # the autopilot's events: mode, arming...
+    saved = (root.level, root.propagate, ours.level)
+    handler = say.handler()
+    root.addHandler(handler)
+    root.setLevel(logging.WARNING)
+    root.propagate = False  # each line once, stamped, on stdout
+    ours.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        root.removeHandler(handler)
+        root.setLevel(saved[0])
+        root.propagate = saved[1]
+        ours.setLevel(saved[2])
+
+
+@contextmanager
+def _stop_on_signals(node: Node) -> Iterator[None]:
+    """Ctrl-C (SIGINT) or SIGTERM (systemd's stop) ends the loop at the end of its tick, so
+    `destroy()` runs and the summary is written; a second one interrupts at once."""
+
+    def stop(signum: int, _frame: object) -> None:
+        node.stop()
+        for sig in saved:  # the next one is not asked twice
+            signal.signal(sig, signal.default_int_handler)
+
+    saved: dict[signal.Signals, Any] = {}
+    if threading.current_thread() is threading.main_thread():  # only it may take signals
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            saved[sig] = signal.signal(sig, stop)
+    try:
+        yield
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)

@@ -26,7 +26,8 @@ class MavlinkAutopilot:
         """Read the line, move pending commands on, send our heartbeat."""
         self.link.poll()
         for event in self.link.drain_events():
-            _log.info("autopilot: %s", event)
+            text = event.text
+            _log.info("%s", text if text.startswith("autopilot") else f"autopilot: {text}")
 
     def telemetry(self) -> Telemetry:
         """The latest state; the last known position (or home) while none is reported."""

@@ -11,25 +11,31 @@ the node feeds it, in this order:
 The loop keeps the profile's rate against a monotonic clock. A late tick is logged and
 counted, never skipped: every tick runs all five phases. A script error puts the robot in
 its safe state (the supervisor's failsafe) and the node goes on: it keeps talking to the
-vehicle and the radio, so the robot stays visible and controllable.
+vehicle and the radio, so the robot stays visible and controllable. `stop()` ends the loop
+at the end of a tick (Ctrl-C does that), `finish()` runs the script's `destroy()` and says
+whether a script error left the robot in its failsafe.
+
+Everything the node says goes to one `out` (by default a `NodeLog`, which stamps each line
+`[UTC time] robot N: `): the script's `log(...)` and the node's own lines, in time order.
 """
 
 from __future__ import annotations
 
-import logging
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 
 import bvm
+from fieldkit.node.log import NodeLog
 from fieldkit.radio.base import RadioLink
 from fieldkit.robot import geo
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
-from fieldkit.robot.runtime import RobotRuntime
+from fieldkit.robot.runtime import RobotRuntime, ScriptStatus
 from fieldkit.robot.vehicle import VehiclePort, sensors_from
 
-_log = logging.getLogger("fieldkit.node")
+#: Late ticks logged one by one; after that every hundredth (a slow machine must not flood).
+LATE_TICKS_LOGGED = 10
 
 
 class Node:
@@ -46,17 +52,24 @@ class Node:
         home: tuple[float, float, float],
         commands: Sequence[RcCommand] = (),
         clock: Callable[[], float] = time.monotonic,
-        out: Callable[[str], None] = print,
+        out: Callable[[str], None] | None = None,
         seed: int = 0,
         globals_: Mapping[str, object] | None = None,
     ) -> None:
-        """`commands` are this robot's remote-control codes (times from start); `seed`
-        seeds the script's generators (with the robot id: each robot its own)."""
+        """`commands` are this robot's remote-control codes (times from start); `out` takes
+        each line the node logs, unstamped (default: a `NodeLog` on stdout); `seed` seeds
+        the script's generators (with the robot id: each robot its own); `globals_` are
+        script globals set before `init()` (`--set`)."""
         self.profile = profile
         self.robot_id = robot_id
         self.vehicle = vehicle
         self.radio = radio
         self.clock = clock
+        self.out: Callable[[str], None] = out if out is not None else NodeLog(robot_id)
+        # The script API tags each line `[id] ` for hosts that mix robots in one stream;
+        # the node's `out` names its one robot itself.
+        self._script_tag = f"[{robot_id}] "
+        self.stopping = False
         self.period = 1.0 / profile.node.loop_rate_hz
         self.frame = geo.LocalFrame(*home)
         self.commands = sorted(commands, key=lambda c: c.t)
@@ -67,13 +80,16 @@ class Node:
             profile,
             self.frame,
             seed=seed,
-            log_sink=out,
+            log_sink=self._script_log,
             # A runaway step cannot stall the loop.
             max_seconds=max(0.5, 5 * self.period),
             # Nor can a first call's translation (50-110 ms of a tick, measured).
             translate_ahead=True,
         )
         self.runtime.start(program, sensors_from(vehicle.telemetry(), self.frame), globals_)
+
+    def _script_log(self, text: str) -> None:
+        self.out(text.removeprefix(self._script_tag))
 
     def _due_command(self, now: float) -> RcCommand | None:
         if self.commands and self.commands[0].t <= now - self.started:
@@ -105,22 +121,38 @@ class Node:
     def run(
         self, seconds: float | None = None, sleep: Callable[[float], None] = time.sleep
     ) -> None:
-        """Tick at the profile's rate until `seconds` have passed (forever if None)."""
+        """Tick at the profile's rate until `seconds` have passed (forever if None) or
+        `stop()` is called."""
         start = self.clock()
         next_tick = start
-        while seconds is None or self.clock() - start < seconds:
+        while not self.stopping and (seconds is None or self.clock() - start < seconds):
             self.tick()
             next_tick += self.period
             now = self.clock()
             if now > next_tick:
                 self.late_ticks += 1
                 late = now - next_tick
-                if self.late_ticks <= 10 or self.late_ticks % 100 == 0:
-                    _log.warning("tick %d late by %.0f ms", self.runtime.ticks, late * 1000)
+                if self.late_ticks <= LATE_TICKS_LOGGED or self.late_ticks % 100 == 0:
+                    self.out(f"tick {self.runtime.ticks} late by {late * 1000:.0f} ms")
                 # Keep the rate from here: no burst of catch-up ticks after a stall.
                 next_tick = now
-            else:
+            elif not self.stopping:
                 sleep(next_tick - now)
+
+    def stop(self) -> None:
+        """End `run` after the tick in progress (safe from a signal handler: it sets a flag)."""
+        self.stopping = True
+
+    def finish(self) -> str | None:
+        """The run is over: run the script's `destroy()`. The script error that leaves the
+        robot in its failsafe at the end (in the loop, or in `destroy()`), else None."""
+        runtime = self.runtime
+        failed = runtime.status is ScriptStatus.FAILED
+        before = runtime.error
+        runtime.destroy()
+        if runtime.error is not before:  # destroy() failed
+            failed = True
+        return runtime.error if failed else None
 
     def summary(self) -> dict[str, object]:
         """What `--out DIR` writes to summary.json."""

@@ -3,7 +3,8 @@
 One `RcCommand` is one code for one robot at a time after start: 22 take off, 21 land,
 20 go home, 900 task allocation, 901 coverage, 16 a waypoint (its four parameters: waypoint
 id, latitude, longitude, altitude). The simulator, the field node and SITL all take them in
-the same `T:ROBOT:CODE[:P1:P2...]` text (the node, a robot of its own, `T:CODE[:P...]`).
+the one `T:ROBOT:CODE[:P1:P2...]` text, so `5:1:22` means the same everywhere (a node takes
+only the commands for its own robot id). The node's old two-field `T:CODE` is refused.
 """
 
 from __future__ import annotations
@@ -16,6 +17,9 @@ from fieldkit.errors import ConfigError
 
 #: The waypoint code: it carries (waypoint id, lat, lon, alt).
 RC_WAYPOINT: Final = 16
+
+#: How `--command` is written, for help texts and error messages.
+COMMAND_FORM: Final = "T:ROBOT:CODE[:P...], e.g. 5:1:22 (robot 1 takes off at 5 s)"
 
 #: The script's `rc_goto` table: (waypoint id, lat, lon, alt).
 RcGoto = tuple[int, float, float, float]
@@ -31,34 +35,29 @@ class RcCommand:
     params: tuple[float, ...] = ()  # code 16: (waypoint id, lat, lon, alt)
 
     @classmethod
-    def parse(cls, text: str, robot: int | None = None) -> RcCommand:
-        """Parse `T:ROBOT:CODE[:P...]`, or `T:CODE[:P...]` for the given `robot`."""
-        form = (
-            "T:CODE[:PARAMS...], e.g. 5:22"
-            if robot is not None
-            else ("T:ROBOT:CODE[:PARAMS...], e.g. 5:1:22 (robot 1 takes off at 5 s)")
-        )
+    def parse(cls, text: str) -> RcCommand:
+        """Parse `T:ROBOT:CODE[:P...]` (ConfigError, naming the form, if it does not parse)."""
         parts = text.split(":")
-        head = 2 if robot is not None else 3
         try:
-            if len(parts) < head:
+            if len(parts) < 3:
                 raise ValueError
             t = float(parts[0])
-            rid = robot if robot is not None else int(parts[1])
-            code = int(parts[head - 1])
-            params = tuple(float(p) for p in parts[head:])
+            robot = int(parts[1])
+            code = int(parts[2])
+            params = tuple(float(p) for p in parts[3:])
         except ValueError:
-            raise ConfigError(f"--command {text!r}: expected {form}") from None
+            # The node took `T:CODE` until issue 13: say so to whoever still types it.
+            gone = "; the two-field T:CODE form is gone" if len(parts) == 2 else ""
+            raise ConfigError(f"--command {text!r}: expected {COMMAND_FORM}{gone}") from None
         if t < 0 or not math.isfinite(t):
             raise ConfigError(f"--command {text!r}: time must be >= 0 seconds")
         if code == RC_WAYPOINT and len(params) != 4:
             raise ConfigError(f"--command {text!r}: code 16 needs 4 params ID:LAT:LON:ALT")
-        return cls(t, rid, code, params)
+        return cls(t, robot, code, params)
 
-    def text(self, with_robot: bool = True) -> str:
+    def text(self) -> str:
         """The command as `parse` reads it back (SITL hands it to a node this way)."""
-        head = f"{self.t!r}:{self.robot}:{self.code}" if with_robot else f"{self.t!r}:{self.code}"
-        return ":".join([head, *(repr(p) for p in self.params)])
+        return ":".join([f"{self.t!r}:{self.robot}:{self.code}", *(repr(p) for p in self.params)])
 
     @property
     def goto(self) -> RcGoto | None:
@@ -69,4 +68,4 @@ class RcCommand:
         return int(wid), lat, lon, alt
 
 
-__all__ = ["RC_WAYPOINT", "RcCommand", "RcGoto"]
+__all__ = ["COMMAND_FORM", "RC_WAYPOINT", "RcCommand", "RcGoto"]
