@@ -27,6 +27,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import all as mavlink2
 from rigs import SimRig
 
+from fieldkit.robot import geo
 from fieldkit.robot.profiles import load_profile
 from fieldkit.vehicle import (
     Autopilot,
@@ -220,7 +221,7 @@ def test_a_tcp_link_like_sitl() -> None:
             while link.telemetry.alt_rel_m is None or link.telemetry.alt_rel_m < 0.9:
                 assert time.monotonic() < deadline, "no climb seen"
                 link.poll(0.1)
-            assert link.telemetry.lat == pytest.approx(45.5049, abs=1e-6)
+            assert link.telemetry.lat == pytest.approx(geo.DEFAULT_HOME[0], abs=1e-6)
     finally:
         stop.set()
         runner.join(5.0)
