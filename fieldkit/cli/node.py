@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import re
 import socket
 import sys
@@ -75,6 +76,11 @@ def node_cmd(
     from fieldkit.vehicle.link import Autopilot
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    # Checked before anything connects: nan or inf would wait, or fly, forever.
+    if not 0 < connect_timeout <= 3600:
+        raise fail(f"--connect-timeout must be > 0 and at most 3600 s, got {connect_timeout}")
+    if seconds is not None and not 0 < seconds < math.inf:
+        raise fail(f"--seconds must be > 0 (leave it out to run until stopped), got {seconds}")
     try:
         prof = load_profile(profile)
     except (ProfileError, OSError) as e:
@@ -97,6 +103,8 @@ def node_cmd(
         raise fail(e, script) from None
     except OSError as e:
         raise fail(f"{script}: cannot read: {e.strerror or e}") from None
+    if out is not None:  # before the flight: an --out that cannot be a directory fails now
+        out_dir(out)
     try:
         link = Autopilot.from_profile(prof, autopilot)
         link.wait_heartbeat(connect_timeout)
