@@ -13,7 +13,7 @@ userdata    Userdata, an opaque host object
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from bvm.errors import BuzzError
@@ -159,6 +159,13 @@ def format_value(x: Any) -> str:
     if cls is Table:
         return f"[table with {len(x)} elems]"
     return repr(x)
+
+
+def format_log(args: Iterable[Any]) -> str:
+    """One `log(...)` line, without its newline: the values as `format_value` prints them,
+    with nothing between them (the reference bzzrun's `log`, and `io.fwrite`). Every host's
+    `log` prints this: `fieldkit run`, the simulator and the node (docs/compat.md#R5)."""
+    return "".join([format_value(a) for a in args])
 
 
 def to_buzz(x: Any) -> Any:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import bvm
-from bvm.values import format_value
+from bvm.values import format_log
 
 
 def make_robot(
@@ -13,7 +13,7 @@ def make_robot(
     lines: list[str] = []
     vm = bvm.VM(robot_id=robot_id, translate=translate, rng_seed=robot_id)
     vm.load(bvm.compile_source(src, "robot.bzz"))
-    vm.register("log", lambda *args: lines.append("".join(map(format_value, args))))
+    vm.register("log", lambda *args: lines.append(format_log(args)))
     if run:
         vm.execute()
     return vm, lines

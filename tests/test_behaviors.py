@@ -16,7 +16,7 @@ import pytest
 from harness import Harness
 
 import bvm
-from bvm.values import f32, format_value
+from bvm.values import f32, format_log
 from fieldkit.robot import geo, shapes
 from fieldkit.robot import voronoi as vor
 from fieldkit.sim import simulator as sim_mod
@@ -153,9 +153,7 @@ class StandIn:
                 vm.register(name, lambda *args: None)
             vm.register(
                 "log",
-                lambda *a, rid=rid: self.lines.append(
-                    f"[{rid}] " + " ".join(format_value(x) for x in a)
-                ),
+                lambda *a, rid=rid: self.lines.append(f"[{rid}] " + format_log(a)),
             )
             vm.register("goto_abs", self._mover(rid))
             vm.register("load_graph", shapes.load_graph)

@@ -6,11 +6,18 @@ from __future__ import annotations
 
 import ast
 import json
+import os
+import re
 import subprocess
 import sys
+import typing
+from collections.abc import Iterator
+from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 import pytest
+import typer.main
 from typer.testing import CliRunner
 
 from bvm.errors import BuzzCompileError, BuzzError, BuzzLoadError
@@ -83,6 +90,13 @@ CASES = [
      "cannot create"),
     (["sitl", "--robots", "0", "--script", "{d}/good.bzz", "--out", "{d}/o"], 1, "--robots"),
     (["vehicle-sim", "--profile", "solo", "--rate", "0"], 1, "--rate"),
+    # values that parse but would never end, or overflow
+    (["sitl", "--robots", "1", "--script", "{d}/good.bzz", "--out", "{d}/o", "--seconds", "inf"], 1,
+     "--seconds"),
+    (["node", "--profile", "solo", "--script", "{d}/good.bzz", "--robot-id", "1",
+      "--connect-timeout", "nan"], 1, "--connect-timeout"),
+    (["node", "--profile", "solo", "--script", "{d}/good.bzz", "--robot-id", "1", "--seconds",
+      "-1"], 1, "--seconds"),
 ]  # fmt: skip
 
 
@@ -175,3 +189,176 @@ def test_write_json_is_stable_and_says_where(
     assert path.read_text() == '{\n  "a": [\n    1.5,\n    null\n  ],\n  "b": 1\n}\n'
     assert json.loads(path.read_text()) == {"a": [1.5, None], "b": 1}
     assert capsys.readouterr().err == f"wrote {path}\n"
+
+
+# ------------------------------------------------------------------ every command, walked
+
+
+def _tree() -> dict[tuple[str, ...], Any]:
+    """Every command and group of `fieldkit` by its path (() is the root), as click has them."""
+    found: dict[tuple[str, ...], Any] = {}
+
+    def walk(command: Any, path: tuple[str, ...]) -> None:
+        found[path] = command
+        for name, sub in getattr(command, "commands", {}).items():
+            walk(sub, (*path, name))
+
+    walk(typer.main.get_command(app), ())
+    return found
+
+
+TREE = _tree()
+LEAVES = {path: c for path, c in TREE.items() if not getattr(c, "commands", None)}
+
+
+def test_the_walk_finds_every_command() -> None:
+    names = {" ".join(path) for path in LEAVES}
+    assert names >= {"compile", "run", "asm", "disasm", "node", "vehicle-sim", "sitl"}
+    assert names >= {"sim run", "sim experiment", "sim sweep"}
+
+
+@pytest.mark.parametrize("path", list(TREE), ids=[" ".join(p) or "fieldkit" for p in TREE])
+def test_every_help_prints_as_written(path: tuple[str, ...]) -> None:
+    result = runner.invoke(app, [*path, "--help"])
+    assert result.exit_code == 0, result.output
+    text = result.stdout
+    # No emoji (rich read `:robot:` as one), no box drawing, no Python types as placeholders.
+    assert text.isascii(), sorted({c for c in text if not c.isascii()})
+    for junk in ("<bool>", "list[", "Optional", "NoneType"):
+        assert junk not in text, junk
+    # Every `A:B:C`-like word of a parameter's help appears as written.
+    for param in TREE[path].params:
+        for word in re.findall(r"\S*:\S+", param.help or ""):
+            assert word in text, word
+
+
+def test_the_command_option_help_keeps_its_colons() -> None:
+    text = runner.invoke(app, ["sim", "run", "--help"]).stdout
+    assert "T:ROBOT:CODE[:P...]" in text
+    assert "--include <path>" in text and "--command <str>" in text
+
+
+def test_version_comes_from_the_package_metadata() -> None:
+    result = runner.invoke(app, ["--version"])
+    assert result.exit_code == 0, result.output
+    assert result.stdout == f"fieldkit {metadata.version('fieldkit')}\n"
+    assert re.fullmatch(r"fieldkit \d+\.\d+\.\d+\n", result.stdout)
+    import fieldkit
+
+    assert fieldkit.__version__ == metadata.version("fieldkit")  # one version, not two
+
+
+def test_a_group_alone_prints_its_help() -> None:
+    result = runner.invoke(app, ["sim"])
+    assert result.exit_code == 2
+    assert re.match(r"Usage: \S+ sim \[OPTIONS\] COMMAND", result.stderr), result.stderr
+    assert "error:" not in result.stderr
+
+
+# Arguments that would run each command as briefly as it can, should a bad value slip by:
+# every case below replaces one of them by a bad one. {d}: the files' directory.
+BASE: dict[str, dict[str, str | list[str]]] = {
+    "compile": {"script": "{d}/good.bzz"},
+    "run": {"file": "{d}/good.bzz"},
+    "asm": {"file": "{d}/good.basm"},
+    "disasm": {"file": "{d}/good.bo"},
+    "sim run": {"script": "{d}/good.bzz", "robots": "1", "out": "{d}/o", "seconds": "0.1"},
+    "sim experiment": {"name": "coverage", "out": "{d}/o", "runs": "1", "seconds": "21"},
+    "sim sweep": {
+        "names": ["coverage"], "out": "{d}/o", "runs": "1", "seconds": "21", "workers": "1",
+    },
+    "node": {
+        "profile": "solo", "script": "{d}/good.bzz", "robot_id": "1", "radio": "none",
+        "seconds": "0.1", "connect_timeout": "0.1",
+    },
+    "vehicle-sim": {"profile": "solo", "rate": "0"},
+    "sitl": {"robots": "1", "script": "{d}/good.bzz", "out": "{d}/o", "seconds": "0.1"},
+}  # fmt: skip
+
+
+def _args(path: tuple[str, ...], values: dict[str, str | list[str]]) -> list[str]:
+    """The command line of `path` with these parameter values (by parameter name)."""
+    command = LEAVES[path]
+    args = list(path)
+    for param in command.params:
+        if param.name not in values:
+            continue
+        value = values[param.name]
+        for v in [value] if isinstance(value, str) else value:
+            args += [v] if param.param_type_name == "argument" else [param.opts[0], v]
+    return args
+
+
+def _annotation(param: Any) -> Any:
+    """The parameter's Python type (a list's element type)."""
+    annotation = param.type_descriptor.annotation
+    return (typing.get_args(annotation) or (annotation,))[0]
+
+
+def _bad_inputs() -> list[tuple[tuple[str, ...], str, str, int, str]]:
+    """(command, parameter, bad value, status, text the error line names) for every
+    parameter of every command that takes a file, a directory, a profile or a number."""
+    cases = []
+    for path, command in LEAVES.items():
+        assert " ".join(path) in BASE, f"add {' '.join(path)!r} to BASE"
+        for param in command.params:
+            name, kind = param.name, _annotation(param)
+            if kind in (int, float):
+                cases.append((path, name, "abc", 2, f"'{param.opts[0]}'"))
+            elif name == "profile":  # a name or a .toml file
+                cases.append((path, name, "{d}/nope.toml", 1, "nope.toml"))
+                cases.append((path, name, "{d}/locked.toml", 1, "locked.toml"))
+                cases.append((path, name, "{d}/adir.toml", 1, "adir.toml"))
+            elif kind is not Path or name == "include":
+                continue  # (an include directory that does not exist is not searched)
+            elif name == "out" and param.opts[0] == "--out":  # a directory to create
+                cases.append((path, name, "{d}/existing.txt", 1, "existing.txt"))
+                cases.append((path, name, "{d}/lockeddir/o", 1, "lockeddir"))
+            elif name == "out":  # an output file
+                cases.append((path, name, "{d}/existing.txt/x.bo", 1, "existing.txt"))
+                cases.append((path, name, "{d}/adir.bo", 1, "adir"))
+            else:  # a file to read
+                cases.append((path, name, "{d}/nope.bzz", 1, "nope.bzz"))
+                cases.append((path, name, "{d}/locked.bzz", 1, "locked.bzz"))
+                cases.append((path, name, "{d}/adir.bzz", 1, "adir.bzz"))
+    return cases
+
+
+BAD_INPUTS = _bad_inputs()
+
+
+@pytest.fixture
+def bad_files(files: Path) -> Iterator[Path]:
+    """Beside `files`: unreadable files, directories where files are expected, an existing
+    plain file where a directory is expected, and a directory nobody may write in."""
+    assert runner.invoke(app, ["compile", str(files / "good.bzz"), "--asm"]).exit_code == 0
+    (files / "existing.txt").write_text("not a directory")
+    for name in ("adir.bzz", "adir.toml", "adir.bo"):
+        (files / name).mkdir()
+    (files / "locked.bzz").write_text(GOOD)
+    (files / "locked.toml").write_text("")
+    (files / "lockeddir").mkdir()
+    for name in ("locked.bzz", "locked.toml", "lockeddir"):
+        (files / name).chmod(0)
+    yield files
+    (files / "lockeddir").chmod(0o700)
+
+
+@pytest.mark.parametrize(
+    ("path", "name", "value", "status", "text"),
+    BAD_INPUTS,
+    ids=[f"{' '.join(c[0])} {c[1]}={c[2].removeprefix('{d}/')}" for c in BAD_INPUTS],
+)
+def test_every_command_rejects_bad_input_cleanly(
+    bad_files: Path, path: tuple[str, ...], name: str, value: str, status: int, text: str
+) -> None:
+    if "locked" in value and os.geteuid() == 0:
+        pytest.skip("root reads and writes whatever the permissions say")
+    values = {**BASE[" ".join(path)], name: value}
+    args = [a.format(d=bad_files) for a in _args(path, values)]
+    result = runner.invoke(app, args)
+    assert "Traceback" not in result.output
+    assert result.exit_code == status, result.output
+    errors = [line for line in result.stderr.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1 and text in errors[0], result.stderr
+    assert isinstance(result.exception, SystemExit)

@@ -112,8 +112,9 @@ def test_storegoal_refuses_far_goals() -> None:
 
 
 def test_log_prefixes_the_robot_id() -> None:
+    # The values joined with nothing between them, as `fieldkit run` prints them (compat H2).
     vm, api, lines = robot("log('state ', 3, ' ', 1.5, nil)", rid=7)
-    assert lines == ["[7] state  3   1.500000 [nil]"]
+    assert lines == ["[7] state 3 1.500000[nil]"]
 
 
 def test_type_errors_say_which_argument() -> None:

@@ -22,7 +22,7 @@ import os
 from typing import IO, TYPE_CHECKING, Any
 
 from bvm.errors import BuzzError
-from bvm.values import Closure, Table, Userdata, format_value, type_name
+from bvm.values import Closure, Table, Userdata, format_log, type_name
 
 if TYPE_CHECKING:
     from bvm.host import LibraryHost
@@ -170,7 +170,7 @@ def _make_io(vm: LibraryHost, io_table: Table) -> tuple[Any, ...]:
                 f"wrong number of local variables: expected at least 2 parameters, got {len(args)}"
             )
         fp = handle(args[0]).fp
-        text = "".join([format_value(v) for v in args[1:]])
+        text = format_log(args[1:])
         try:
             fp.write(text.encode("latin-1", "replace") + b"\n")
         except io.UnsupportedOperation:  # not open for writing: C reports EBADF

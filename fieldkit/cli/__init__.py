@@ -7,6 +7,9 @@ exit-code rule, `output` for where results go. Library modules never import this
 
 from __future__ import annotations
 
+from importlib import metadata
+from typing import Annotated
+
 import typer
 
 from fieldkit.cli import buzz, node, sim, sitl, vehicle_sim
@@ -19,6 +22,36 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+
+
+def version_text() -> str:
+    """`fieldkit X.Y.Z`: the installed distribution's version, from its package metadata."""
+    try:
+        return f"fieldkit {metadata.version('fieldkit')}"
+    except metadata.PackageNotFoundError:  # imported from a checkout that was never installed
+        import fieldkit
+
+        return f"fieldkit {fieldkit.__version__}"
+
+
+def _print_version(requested: bool) -> None:
+    """`--version`: print it and stop, before any command runs."""
+    if requested:
+        typer.echo(version_text())
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", is_eager=True, callback=_print_version, help="Print the version and exit."
+        ),
+    ] = False,
+) -> None:
+    """fieldkit: take a Buzz swarm behavior from design to field deployment."""
+
 
 # In the order `fieldkit --help` has always listed them.
 app.command("vehicle-sim")(vehicle_sim.vehicle_sim_cmd)
@@ -34,4 +67,4 @@ def main() -> None:
     app()
 
 
-__all__ = ["app", "main"]
+__all__ = ["app", "main", "version_text"]

@@ -4,7 +4,9 @@ Every command exits 0 on success; 1 on a failure, after one line on stderr that 
 `error:` (for Buzz source errors `error: FILE:LINE:COL: message`, a hint may follow); 2 when
 the command line does not parse (an unknown option, a missing argument, `--seconds abc`).
 Nothing a user can type ends in a Python traceback: `FieldkitGroup` turns usage errors into
-the same `error:` line and unexpected exceptions into an `error:` line naming them.
+the same `error:` line and unexpected exceptions into an `error:` line naming them. It also
+renders every command's help as plain text (`plain_help`). Ctrl-C is a failure too:
+`error: interrupted`, exit 1 (`fieldkit run` says where in the script).
 """
 
 from __future__ import annotations
@@ -14,10 +16,10 @@ import sys
 import traceback
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import typer
-from typer.core import TyperGroup
+from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from bvm.errors import BuzzAsmError, BuzzCompileError, BuzzError, BuzzLoadError
 
@@ -25,6 +27,9 @@ from bvm.errors import BuzzAsmError, BuzzCompileError, BuzzError, BuzzLoadError
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
+
+#: What typer returns when Ctrl-C interrupted a command (128 + SIGINT); reported as a failure.
+EXIT_INTERRUPTED = 130
 
 #: Set to 1 to see the traceback of an unexpected exception (for a bug report).
 DEBUG_ENV = "FIELDKIT_DEBUG"
@@ -87,6 +92,7 @@ class FieldkitGroup(TyperGroup):
         **extra: Any,
     ) -> Any:
         """Run the command line; exit with the status of the rule above."""
+        plain_help(self)
         if not standalone_mode:  # a caller that handles exceptions itself
             return super().main(
                 args, prog_name, complete_var, standalone_mode, windows_expand_args, **extra
@@ -104,12 +110,61 @@ class FieldkitGroup(TyperGroup):
             status = EXIT_FAILURE
         except Exception as e:  # noqa: BLE001  # the contract: never a traceback
             status = _unexpected(e)
+        if status == EXIT_INTERRUPTED:  # Ctrl-C that no command reported: typer's silent 130
+            typer.echo("error: interrupted", err=True)
+            status = EXIT_FAILURE
         sys.exit(status if isinstance(status, int) else EXIT_OK)
+
+
+def plain_help(command: TyperCommand | TyperGroup) -> None:
+    """Render the help of `command` and of every command under it as plain text.
+
+    Rich markup mode reads help text as markup: `T:ROBOT:CODE` became `T🤖CODE` (`:robot:`
+    is an emoji code), `[...]` would vanish as a style tag, and flags got a `<bool>` beside
+    them. Help written for a terminal must print as written, so every command and group of
+    the tree gets markup mode None, whichever Typer app registered it. Typer's plain mode
+    still names a repeatable parameter's type as a Python annotation (`<list[Path]>`): such
+    parameters show their element's type instead.
+    """
+    command.rich_markup_mode = None
+    for param in command.params:
+        annotation = getattr(param, "type_descriptor", None)
+        elements = get_args(getattr(annotation, "annotation", None))
+        if not elements:
+            continue
+        label = f"<{_type_label(elements[0])}>"
+        if isinstance(param, TyperOption) and param.multiple and param.metavar is None:
+            param.metavar = label
+        elif isinstance(param, TyperArgument) and not isinstance(param, _ListArgument):
+            param.__class__ = _ListArgument  # same layout: only its type label differs
+    if isinstance(command, TyperGroup):
+        for sub in command.commands.values():
+            if isinstance(sub, (TyperCommand, TyperGroup)):
+                plain_help(sub)
+
+
+def _type_label(annotation: object) -> str:
+    """How help names a value of this type: `path`, `int`, `str`..."""
+    if isinstance(annotation, type):
+        return "path" if issubclass(annotation, Path) else annotation.__name__
+    return "value"
+
+
+class _ListArgument(TyperArgument):
+    """An argument taking several values: help names its element type, not `list[...]`."""
+
+    def display_type(self, ctx: Any) -> str:
+        """`<str>` for a `list[str]` argument."""
+        elements = get_args(self.type_descriptor.annotation)
+        return f"<{_type_label(elements[0] if elements else None)}>"
 
 
 def _usage_error(e: typer.TyperException) -> int:
     """Print the usage line (when known), then the problem as an `error:` line; its status."""
     ctx = getattr(e, "ctx", None)  # set on usage errors found while parsing
+    if type(e).__name__ == "NoArgsIsHelpError":  # `fieldkit sim` alone: the help is the answer
+        typer.echo(e.format_message(), err=True)
+        return e.exit_code
     if ctx is not None:
         typer.echo(ctx.get_usage(), err=True)
         typer.echo(f"Try '{ctx.command_path} --help' for help.", err=True)
@@ -134,12 +189,14 @@ def _unexpected(e: Exception) -> int:
 __all__ = [
     "DEBUG_ENV",
     "EXIT_FAILURE",
+    "EXIT_INTERRUPTED",
     "EXIT_OK",
     "EXIT_USAGE",
     "FieldkitGroup",
     "UsageProblem",
     "error_text",
     "fail",
+    "plain_help",
     "report",
     "usage_error",
 ]

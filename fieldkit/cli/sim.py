@@ -217,7 +217,7 @@ def sweep_cmd(
     names: Annotated[
         list[str] | None,
         typer.Argument(
-            metavar="[NAME]...", help="Experiments to run (default: all four).", show_default=False
+            metavar="NAME", help="Experiments to run (default: all four).", show_default=False
         ),
     ] = None,
     robots: Annotated[

@@ -51,8 +51,8 @@ def sitl_cmd(
         raise fail(f"--robots must be 1..64 (one process each), got {robots}")
     if not 0.0 <= drop <= 1.0:
         raise fail(f"--drop must be a probability in [0, 1], got {drop}")
-    if not seconds > 0:
-        raise fail(f"--seconds must be > 0, got {seconds}")
+    if not 0 < seconds <= 1e6:  # (inf would overflow the progress count, nan never end)
+        raise fail(f"--seconds must be > 0 and at most 1e6, got {seconds}")
     script = resources.find_script(script)
     if not script.is_file():
         raise fail(f"--script {script}: no such file")

@@ -27,7 +27,7 @@ from typing import Any, Final, Literal, NamedTuple
 
 import bvm
 from bvm.errors import BuzzError
-from bvm.values import Table, f32, format_value, type_name
+from bvm.values import Table, f32, format_log, type_name
 
 # Imported with the API, never inside a tick: the first `voronoi` call used to import
 # scipy (250-310 ms) in the middle of a 100 ms tick.
@@ -228,7 +228,8 @@ class ScriptAPI:
     # ------------------------------------------------------------ closures
 
     def _log(self, *args: Any) -> None:
-        text = f"[{self.vm.robot_id}] " + " ".join(format_value(a) for a in args)
+        # The one `log` format (bvm.values.format_log), as `fieldkit run` prints it.
+        text = f"[{self.vm.robot_id}] " + format_log(args)
         if self.log_sink is not None:
             self.log_sink(self.vm.robot_id, text)
 

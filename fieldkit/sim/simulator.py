@@ -88,6 +88,8 @@ class SimConfig:
     globals: dict[str, object] = field(default_factory=dict)  # set before the global code
     max_ticks_per_step: int = 1_000_000  # a runaway loop in a script stops that robot
     decode_bundles: bool = False  # parse every received bundle's bytes (slower; for tests)
+    first_id: int = 1  # robot ids are first_id..first_id+robots-1 (`fieldkit run --robot-api`)
+    program: bvm.Program | None = None  # already compiled (a .bo): `script` only names it
 
     def validate(self) -> None:
         """Raise ConfigError for any invalid parameter."""
@@ -101,9 +103,14 @@ class SimConfig:
             raise ConfigError(f"--range must be > 0 metres, got {self.range_m}")
         if not 0 < self.seconds <= 1e6:
             raise ConfigError(f"--seconds must be > 0, got {self.seconds}")
+        last = self.first_id + self.robots - 1
+        if not 0 <= self.first_id <= last <= 65535:
+            raise ConfigError(f"robot ids {self.first_id}..{last} are not all in 0..65535")
         for c in self.commands:
-            if not 1 <= c.robot <= self.robots:
-                raise ConfigError(f"--command for robot {c.robot}: robots are 1..{self.robots}")
+            if not self.first_id <= c.robot <= last:
+                raise ConfigError(
+                    f"--command for robot {c.robot}: robots are {self.first_id}..{last}"
+                )
 
 
 class SimRobot:
@@ -145,7 +152,9 @@ class Simulation:
             self.profile: Profile = load_profile(config.profile)
         except (OSError, ValueError) as e:
             raise ConfigError(f"--profile {config.profile!r}: {e}") from None
-        self.program = bvm.compile_file(config.script, include_dirs=tuple(config.include_dirs))
+        self.program = config.program or bvm.compile_file(
+            config.script, include_dirs=tuple(config.include_dirs)
+        )
         self.frame = geo.LocalFrame(*config.origin)
         self.radio = RadioModel(self._link_model(config), seed=config.seed)
         self.tick = 0
@@ -163,7 +172,7 @@ class Simulation:
         rng = random.Random(f"layout:{config.seed}")
         side = max(1, math.ceil(math.sqrt(config.robots)))
         for k in range(config.robots):
-            rid = k + 1
+            rid = config.first_id + k
             x = (k % side) * config.spacing_m + rng.uniform(-0.2, 0.2)
             y = (k // side) * config.spacing_m + rng.uniform(-0.2, 0.2)
             vehicle = Vehicle.from_profile(self.profile, x=x, y=y)
