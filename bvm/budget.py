@@ -1,4 +1,4 @@
-"""The step budget: a bound on loop iterations, and on wall time.
+"""The step budget: a bound on loop iterations, and on the processor time of one entry.
 
 Loop iterations (backward jumps: one per `while` iteration, two per `for` iteration, as
 the bytecode has them): each translated loop counts down a Python local from `_K` (1,000)
@@ -7,17 +7,21 @@ and settles with the budget once per `_K` (`_tick()`) and when it exits or retur
 simulations stay reproducible. Translated loops settle in chunks, so there a budget is
 noticed at most one chunk per running loop late; the interpreter settles every jump.
 
-Wall time needs nothing on the hot path: when it runs out, a timer thread raises
-`BudgetTimeout` inside the VM's thread (CPython delivers it at the next bytecode
-boundary, wherever the script is: in a loop, deep in recursion, in a callback). It is
-only delivered while the VM is inside the entry, and again every 50 ms in case a host
-function swallowed it.
+Time needs nothing on the hot path: a timer thread wakes when the allowance could be
+spent and raises `BudgetTimeout` inside the VM's thread (CPython delivers it at the next
+bytecode boundary, wherever the script is: in a loop, deep in recursion, in a callback).
+It is only delivered while the VM is inside the entry, and again every 50 ms in case a
+host function swallowed it. What is counted is the VM thread's processor time where the
+system can tell it (Linux, macOS), else wall time: a runaway loop burns processor time,
+while a robot whose computer is busy elsewhere only waits, and must not lose its script
+for it (a SITL run of six nodes on a loaded two-core machine did).
 """
 
 from __future__ import annotations
 
 import ctypes
 import threading
+import time
 from typing import Any
 
 from bvm.errors import BuzzBudgetExceeded
@@ -73,6 +77,8 @@ class Budget:
         self._active = False  # the VM thread is inside the entry: a timeout may land
         self._timed_out = False
         self._generation = 0
+        self._clock: int | None = None  # the VM thread's CPU clock, if the system has one
+        self._spent_at_start = 0.0
         self.install(namespace)
 
     def install(self, namespace: dict[str, Any]) -> None:
@@ -110,6 +116,8 @@ class Budget:
             generation = self._generation
         if self.max_seconds is not None:
             self._thread = threading.get_ident()
+            self._clock = _thread_clock(self._thread)
+            self._spent_at_start = self._spent()
             self._arm(self.max_seconds, generation)
         with self._lock:
             # Only now, with the timer thread running, may a timeout land in this thread
@@ -138,10 +146,25 @@ class Budget:
         self._timer = timer
         timer.start()
 
+    def _spent(self) -> float:
+        """Seconds on the entry's clock: the VM thread's processor time, else wall time."""
+        if self._clock is not None:
+            try:
+                return time.clock_gettime(self._clock)
+            except OSError:  # the thread is gone: nothing more is spent
+                return self._spent_at_start
+        return time.monotonic()
+
     def _expire(self, generation: int) -> None:
         with self._lock:
             if generation != self._generation:
                 return  # that entry already ended
+            left = (self.max_seconds or 0.0) - (self._spent() - self._spent_at_start)
+            if left > 0.001 and not self._timed_out:
+                # The thread waited (a busy machine) rather than ran: wake when it could
+                # have spent the rest.
+                self._arm(left, generation)
+                return
             if self._active:
                 self._timed_out = True
                 _raise_in(self._thread, BudgetTimeout)
@@ -150,4 +173,13 @@ class Budget:
 
     def timeout_message(self) -> str:
         """The message of a time-budget error."""
-        return f"budget exceeded: ran longer than {self.max_seconds} s"
+        what = "of processor time" if self._clock is not None else ""
+        return f"budget exceeded: ran longer than {self.max_seconds} s {what}".rstrip()
+
+
+def _thread_clock(thread: int) -> int | None:
+    """The processor-time clock of `thread` (a `threading.get_ident()`), if the system has one."""
+    try:
+        return time.pthread_getcpuclockid(thread)
+    except (AttributeError, OSError):
+        return None

@@ -216,6 +216,16 @@ def test_time_budget_stops_a_runaway_step() -> None:
     assert time.monotonic() - t0 < 5.0  # generous: only proves it stopped
 
 
+@pytest.mark.skipif(not hasattr(time, "pthread_getcpuclockid"), reason="no thread CPU clock")
+def test_time_budget_counts_processor_time_not_waiting() -> None:
+    """A step that waits (a loaded computer, a host call that blocks) is not a runaway:
+    a SITL node on a busy machine lost its script to a wall-clock budget."""
+    vm, lines = make_vm('function step() { wait()  log("done") }', max_seconds=0.05)
+    vm.register("wait", lambda: time.sleep(0.3))  # six allowances of wall time, no CPU
+    vm.call("step")
+    assert lines == ["done"]
+
+
 def test_time_budget_never_fires_outside_its_entry() -> None:
     # Deadlines that expire around the end of an entry must not leak into host code.
     src = "function work(n) { var i = 0  while (i < n) { i = i + 1 }  return i }"
