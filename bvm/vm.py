@@ -645,15 +645,22 @@ def _stack(program: Program, frames: list[_Frame]) -> list[StackEntry]:
     """The call stack of running Buzz frames (outermost first), innermost first: each
     function with where its caller called it (None: from the host)."""
     stack = []
+    # Deep recursion repeats a few (function, call site) pairs thousands of times.
+    made: dict[tuple[int, int, int], StackEntry] = {}
     for k, (entry, _, _) in enumerate(frames):
         if entry == TOPLEVEL:
             continue
-        called_at = None
-        if k:
-            _, offset, op = frames[k - 1]
-            where = program.position(op, offset)
-            called_at = f"{where[0]}:{where[1]}:{where[2]}" if where else f"bytecode offset {op}"
-        stack.append(StackEntry(program.function_name(entry), called_at))
+        _, offset, op = frames[k - 1] if k else (entry, -1, -1)
+        found = made.get((entry, offset, op))
+        if found is None:
+            called_at = None
+            if k:
+                where = program.position(op, offset)
+                called_at = (
+                    f"{where[0]}:{where[1]}:{where[2]}" if where else f"bytecode offset {op}"
+                )
+            found = made[entry, offset, op] = StackEntry(program.function_name(entry), called_at)
+        stack.append(found)
     stack.reverse()
     return stack
 
