@@ -77,8 +77,18 @@ def assemble(basm: str, path: str = "<asm>") -> Program:
 def compile_source(
     source: bytes | str, path: str = "<buzz>", include_dirs: Sequence[str] = ()
 ) -> Program:
-    """Compile Buzz source text to a Program."""
-    return assemble(compile_to_asm(source, path, include_dirs), path)
+    """Compile Buzz source text to a Program, with its source map (`program.srcmap`,
+    what `fieldkit compile` writes as the .bpos beside the .bo)."""
+    from bvm.assembler import assemble_mapped
+    from bvm.compiler import compile_marked
+    from bvm.srcmap import from_marks
+
+    if isinstance(source, str):
+        source = source.encode("utf-8")
+    basm, marks = compile_marked(source, path, include_dirs)
+    bytecode, debug, op_at, labels = assemble_mapped(basm, path)
+    smap = from_marks(marks.positions, marks.functions, op_at, labels)
+    return Program(bytecode, debug, path, smap)
 
 
 def compile_file(path: str | Path, include_dirs: Sequence[str] = ()) -> Program:

@@ -324,6 +324,7 @@ class _Assembler:
         self.fixups: list[tuple[int, bytes, int]] = []  # (slot offset, label, line)
         self.debug = DebugMap()
         self.lineno = 0
+        self.op_at: dict[int, int] = {}  # .basm line number -> offset of its instruction
 
     def error(self, message: str, lineno: int | None = None) -> BuzzAsmError:
         return BuzzAsmError(self.path, self.lineno if lineno is None else lineno, message)
@@ -364,6 +365,7 @@ class _Assembler:
         op = NAME_TO_OP.get(name.decode("latin-1"))
         if op is None:
             raise self.error(f'unknown instruction "{name.decode("latin-1")}"')
+        self.op_at[self.lineno] = len(self.out)
         self.out.append(op)
         if not op.has_arg:
             if arg:
@@ -414,6 +416,22 @@ def assemble(basm: str | bytes, path: str = "<asm>") -> tuple[bytes, bytes]:
     A `str` holds one character per byte (latin-1), the form
     `bvm.compiler.compile_asm` returns. Raises `BuzzAsmError` on bad input.
     """
+    return _assembled(basm, path).finish()
+
+
+def assemble_mapped(
+    basm: str | bytes, path: str = "<asm>"
+) -> tuple[bytes, bytes, dict[int, int], dict[str, int]]:
+    """`assemble`, also returning the offset of each instruction by its .basm line number
+    and the offset of each label (what the source map is made of, bvm/srcmap.py)."""
+    asm = _assembled(basm, path)
+    bytecode, debug = asm.finish()
+    labels = {name.decode("latin-1"): where for name, where in asm.labels.items()}
+    return bytecode, debug, asm.op_at, labels
+
+
+def _assembled(basm: str | bytes, path: str) -> _Assembler:
+    """An assembler that has read every line of `basm` (labels not yet resolved)."""
     if isinstance(basm, str):
         try:
             data = basm.encode("latin-1")
@@ -432,4 +450,4 @@ def assemble(basm: str | bytes, path: str = "<asm>") -> tuple[bytes, bytes]:
     for number, raw in enumerate(lines, 1):
         asm.lineno = number
         asm.line(raw, had_newline=number < len(lines) or last_has_newline)
-    return asm.finish()
+    return asm

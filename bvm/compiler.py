@@ -61,13 +61,32 @@ _CLOSURE = "closure"
 _Ref = _Sym | str
 
 
+#: A true source position: (path as opened, line, 1-based column), as `Token.where`.
+Pos = tuple[str, int, int]
+
+
 @dataclass(slots=True)
 class _Chunk:
-    """The code of the global body, of a named function or of a lambda."""
+    """The code of the global body, of a named function or of a lambda.
+
+    Each code line comes with the true position of what it does (the operator, the
+    call, the index...), or None; they become the source map (bvm/srcmap.py)."""
 
     label: int
     function_sid: int | None  # set for named functions: they get a prologue entry
-    code: list[str] = field(default_factory=list)
+    code: list[tuple[str, Pos | None]] = field(default_factory=list)
+    name: str | None = None  # the function's name, if it has one
+    where: Pos | None = None  # where the function is defined
+
+
+@dataclass
+class Marks:
+    """What the source map needs from a compilation, keyed by .basm line number (1-based):
+    the true position of each instruction line, and each function's label, name and
+    definition position."""
+
+    positions: dict[int, Pos] = field(default_factory=dict)
+    functions: list[tuple[str, str | None, Pos | None]] = field(default_factory=list)
 
 
 _START = Token(Tok.EOF, "", 0, 1, "(null)", ("<start>", 1, 0), False)
@@ -107,6 +126,13 @@ class _Compiler:
         self.command_follow: Tok | None = None
         # Bare-return fallbacks taken: (token index the greedy parse failed at, its error).
         self.fallbacks: list[tuple[int, BuzzCompileError]] = []
+        # The position of the statement being compiled: that of its instructions that
+        # have none of their own. The last link of the identifier chain parsed last
+        # (what an assignment stores into), and the name a lambda being defined gets.
+        self.stmt_pos: Pos | None = None
+        self.last_link: Token = _START
+        self.lambda_name: str | None = None
+        self.marks = Marks()
 
     # -- tokens, errors, emission -------------------------------------------------
 
@@ -137,8 +163,9 @@ class _Compiler:
         tok = self.tok
         return f"{text}\t|{tok.line},{tok.col},{tok.file}"
 
-    def emit(self, text: str) -> None:
-        self.chunk.code.append(self.annotate(text))
+    def emit(self, text: str, at: Token | None = None) -> None:
+        """Append a .basm line; `at` is the token of the operation it performs."""
+        self.chunk.code.append((self.annotate(text), self.stmt_pos if at is None else at.where))
 
     def enter(self) -> None:
         self.nesting += 1
@@ -222,10 +249,19 @@ class _Compiler:
                 out.append(f"\tpushcn @__label_{chunk.label}")
                 out.append("\tgstore")
         out.append("\tnop")
-        for chunk in self.chunks:
+        lineno = len(out)  # .basm lines so far (the next one is lineno + 1)
+        marks = self.marks
+        for k, chunk in enumerate(self.chunks):
             out.append("")
             out.append(f"@__label_{chunk.label}")
-            out += chunk.code
+            lineno += 2
+            if k:  # chunk 0 is the global code, no function
+                marks.functions.append((f"@__label_{chunk.label}", chunk.name, chunk.where))
+            for text, pos in chunk.code:
+                out.append(text)
+                lineno += text.count("\n") + 1  # "\n@__exitpoint" is two lines
+                if pos is not None:
+                    marks.positions[lineno] = pos
         return "\n".join(out) + "\n"
 
     def statlist(self) -> None:
@@ -234,6 +270,7 @@ class _Compiler:
 
     def statement(self) -> None:
         self.enter()
+        outer, self.stmt_pos = self.stmt_pos, self.tok.where
         kind = self.tok.kind
         if kind is Tok.VAR:
             self.var_decl()
@@ -247,6 +284,7 @@ class _Compiler:
             self.for_stat()
         else:
             self.command()
+        self.stmt_pos = outer
         self.nesting -= 1
 
     def block(self) -> None:
@@ -292,16 +330,18 @@ class _Compiler:
         self.fetch()
         self.expect(Tok.ID)
         name = self.tok.text
+        name_tok = self.tok
         if len(self.symstack) == 1:
             sym = self.resolve(name)
-            self.emit(f"\tpushs {sym.pos}")
+            self.emit(f"\tpushs {sym.pos}", name_tok)
             self.fetch()
             if self.tok.kind is Tok.ASSIGN:
                 self.fetch()
+                self.name_lambda(name)
                 self.expression()
             else:
                 self.emit("\tpushnil")
-            self.emit("\tgstore")
+            self.emit("\tgstore", name_tok)
             return
         found = self.lookup(name)
         if found is not None and not found.is_global:
@@ -312,14 +352,21 @@ class _Compiler:
         self.fetch()
         if self.tok.kind is Tok.ASSIGN:
             self.emit("\tpushnil")
-            self.emit(f"\tlstore {slot}")
+            self.emit(f"\tlstore {slot}", name_tok)
             self.fetch()
+            self.name_lambda(name)
             self.expression()
         else:
             self.emit("\tpushnil")
-        self.emit(f"\tlstore {slot}")
+        self.emit(f"\tlstore {slot}", name_tok)
+
+    def name_lambda(self, name: str) -> None:
+        """The value about to be parsed is `name`'s: a lambda there is named so."""
+        if self.tok.kind is Tok.FUNCTION:
+            self.lambda_name = name
 
     def function_def(self) -> None:
+        keyword = self.tok
         self.fetch()
         self.expect(Tok.ID)
         name = self.tok.text
@@ -331,6 +378,7 @@ class _Compiler:
             )
         sid = self.resolve(name).pos
         outer, self.chunk = self.chunk, self.new_chunk(function_sid=sid)
+        self.chunk.name, self.chunk.where = name, keyword.where
         self.fetch()
         self.expect(Tok.PAROPEN)
         self.push_scope(fresh_with_self=True)
@@ -347,13 +395,14 @@ class _Compiler:
 
     def if_stat(self) -> None:
         l_else, l_end = self.new_label(), self.new_label()
+        keyword = self.tok
         self.fetch()
         self.expect(Tok.PAROPEN)
         self.fetch()
         self.condition()
         self.expect(Tok.PARCLOSE)
         self.fetch()
-        self.emit(f"\tjumpz @__label_{l_else}")
+        self.emit(f"\tjumpz @__label_{l_else}", keyword)
         self.body()
         if self.tok.kind is Tok.ELSE:
             self.fetch()
@@ -366,6 +415,7 @@ class _Compiler:
 
     def while_stat(self) -> None:
         l_start, l_end = self.new_label(), self.new_label()
+        keyword = self.tok  # where a loop's budget error points
         self.fetch()
         self.expect(Tok.PAROPEN)
         self.fetch()
@@ -373,13 +423,14 @@ class _Compiler:
         self.condition()
         self.expect(Tok.PARCLOSE)
         self.fetch()
-        self.emit(f"\tjumpz @__label_{l_end}")
+        self.emit(f"\tjumpz @__label_{l_end}", keyword)
         self.body()
-        self.emit(f"\tjump @__label_{l_start}")
+        self.emit(f"\tjump @__label_{l_start}", keyword)
         self.emit(f"@__label_{l_end}")
 
     def for_stat(self) -> None:
         l_cond, l_update, l_body, l_end = (self.new_label() for _ in range(4))
+        keyword = self.tok  # where a loop's budget error points
         self.fetch()
         self.expect(Tok.PAROPEN)
         self.fetch()
@@ -391,17 +442,17 @@ class _Compiler:
         self.condition()
         self.expect(Tok.COMMA)
         self.fetch()
-        self.emit(f"\tjumpnz @__label_{l_body}")
-        self.emit(f"\tjump @__label_{l_end}")
+        self.emit(f"\tjumpnz @__label_{l_body}", keyword)
+        self.emit(f"\tjump @__label_{l_end}", keyword)
         self.emit(f"@__label_{l_update}")
         self.command_follow = Tok.PARCLOSE
         self.command()
         self.expect(Tok.PARCLOSE)
         self.fetch()
-        self.emit(f"\tjump @__label_{l_cond}")
+        self.emit(f"\tjump @__label_{l_cond}", keyword)
         self.emit(f"@__label_{l_body}")
         self.body()
-        self.emit(f"\tjump @__label_{l_update}")
+        self.emit(f"\tjump @__label_{l_update}", keyword)
         self.emit(f"@__label_{l_end}")
 
     def command(self) -> None:
@@ -409,18 +460,22 @@ class _Compiler:
         if self.tok.kind is Tok.RETURN:
             self.return_stat(follow)
             return
+        first = self.index
         ref = self.idref(lvalue=True)
+        link = self.last_link
         if self.tok.kind is Tok.ASSIGN:
             if ref == _CLOSURE:
                 raise self.error("Syntax error: can't have a function call as lvalue")
             if isinstance(ref, _Sym) and ref.is_global:
-                self.emit(f"\tpushs {ref.pos}")
+                self.emit(f"\tpushs {ref.pos}", link)
+            target = "".join(self.tokens[i].text for i in range(first, self.index))
             self.fetch()
+            self.name_lambda(target)
             self.expression()
             if isinstance(ref, _Sym):
-                self.emit("\tgstore" if ref.is_global else f"\tlstore {ref.pos}")
+                self.emit("\tgstore" if ref.is_global else f"\tlstore {ref.pos}", link)
             else:
-                self.emit("\ttput")
+                self.emit("\ttput", link)
         elif ref == _CLOSURE:
             self.emit("\tpop")
         else:
@@ -430,9 +485,10 @@ class _Compiler:
             )
 
     def return_stat(self, follow: Tok | None) -> None:
+        keyword = self.tok
         self.fetch()
         if self.tok.kind is Tok.BLOCKCLOSE:
-            self.emit("\tret0")
+            self.emit("\tret0", keyword)
             return
         # Deliberate fix: a value on a later line may be the next statement, which
         # the reference swallows. Parse greedily like the reference; if that fails,
@@ -440,7 +496,7 @@ class _Compiler:
         # (Not before EOF: a top-level `return` at the end stays the reference's error.)
         if not self.tok.newline_before or self.tok.kind is Tok.EOF:
             self.condition()
-            self.emit("\tret1")
+            self.emit("\tret1", keyword)
             return
         snap = self.snapshot()
         try:
@@ -456,9 +512,9 @@ class _Compiler:
             reached = self.index
             self.restore(snap)
             self.fallbacks.append((reached, exc))
-            self.emit("\tret0")
+            self.emit("\tret0", keyword)
             return
-        self.emit("\tret1")
+        self.emit("\tret1", keyword)
 
     def snapshot(self) -> _Snapshot:
         return _Snapshot(
@@ -496,25 +552,28 @@ class _Compiler:
     def condition(self) -> None:
         if self.tok.kind is Tok.LNOT:
             self.enter()
+            optok = self.tok
             self.fetch()
             self.condition()
-            self.emit("\tlnot")
+            self.emit("\tlnot", optok)
             self.nesting -= 1
             return
         self.comparison()
         while self.tok.kind is Tok.LANDOR:
             op = "land" if self.tok.text == "and" else "lor"
+            optok = self.tok
             self.fetch()
             self.comparison()
-            self.emit(f"\t{op}")
+            self.emit(f"\t{op}", optok)
 
     def comparison(self) -> None:
         self.expression()
         if self.tok.kind is Tok.CMP:
             op = _BINOPS[self.tok.text]
+            optok = self.tok
             self.fetch()
             self.expression()
-            self.emit(f"\t{op}")
+            self.emit(f"\t{op}", optok)
 
     def expression(self) -> None:
         self.enter()
@@ -524,57 +583,64 @@ class _Compiler:
             self.product()
             while self.tok.kind is Tok.ADDSUB:
                 op = _BINOPS[self.tok.text]
+                optok = self.tok
                 self.fetch()
                 self.product()
-                self.emit(f"\t{op}")
+                self.emit(f"\t{op}", optok)
         self.nesting -= 1
 
     def product(self) -> None:
         self.modulo()
         while self.tok.kind is Tok.MULDIV:
             op = _BINOPS[self.tok.text]
+            optok = self.tok
             self.fetch()
             self.modulo()
-            self.emit(f"\t{op}")
+            self.emit(f"\t{op}", optok)
 
     def modulo(self) -> None:
         self.power()
         while self.tok.kind is Tok.MOD:
+            optok = self.tok
             self.fetch()
             self.power()
-            self.emit("\tmod")
+            self.emit("\tmod", optok)
 
     def power(self) -> None:
         self.bitshift()
         if self.tok.kind is Tok.POW:
             self.enter()
+            optok = self.tok
             self.fetch()
             self.power()
-            self.emit("\tpow")
+            self.emit("\tpow", optok)
             self.nesting -= 1
 
     def bitshift(self) -> None:
         self.bitandor()
         while self.tok.kind is Tok.LRSHIFT:
             op = _BINOPS[self.tok.text]
+            optok = self.tok
             self.fetch()
             self.bitandor()
-            self.emit(f"\t{op}")
+            self.emit(f"\t{op}", optok)
 
     def bitandor(self) -> None:
         self.bitnot()
         while self.tok.kind is Tok.BANDOR:
             op = _BINOPS[self.tok.text]
+            optok = self.tok
             self.fetch()
             self.bitnot()
-            self.emit(f"\t{op}")
+            self.emit(f"\t{op}", optok)
 
     def bitnot(self) -> None:
         if self.tok.kind is Tok.BNOT:
             self.enter()
+            optok = self.tok
             self.fetch()
             self.bitnot()
-            self.emit("\tbnot")
+            self.emit("\tbnot", optok)
             self.nesting -= 1
         else:
             self.operand()
@@ -608,7 +674,7 @@ class _Compiler:
             else:
                 self.power()
                 if sign == "-":
-                    self.emit("\tunm")
+                    self.emit("\tunm", tok)
             self.nesting -= 1
         else:
             self.idref(lvalue=False)
@@ -628,9 +694,12 @@ class _Compiler:
         return self.intern(text)
 
     def lambda_(self) -> None:
-        self.emit(f"\tpushl @__label_{self.labels}")
+        keyword = self.tok
+        name, self.lambda_name = self.lambda_name, None
+        self.emit(f"\tpushl @__label_{self.labels}", keyword)
         self.fetch()
         outer, self.chunk = self.chunk, self.new_chunk()
+        self.chunk.name, self.chunk.where = name, keyword.where
         self.expect(Tok.PAROPEN)
         self.push_scope(fresh_with_self=len(self.symstack) == 1)
         self.fetch()
@@ -663,7 +732,9 @@ class _Compiler:
     def table_field(self, dup: bool = True) -> None:
         if dup:
             self.emit("\tdup")
+        dot = self.tok
         self.fetch()
+        key = self.tok.text
         if self.tok.kind is Tok.ID:
             self.emit(f"\tpushs {self.intern(self.tok.text)}")
         elif self.tok.kind is Tok.CONST:
@@ -676,8 +747,9 @@ class _Compiler:
         self.fetch()
         self.expect(Tok.ASSIGN)
         self.fetch()
+        self.name_lambda(key)
         self.expression()
-        self.emit("\ttput")
+        self.emit("\ttput", dot)
 
     def call_args(self) -> int:
         count = 0
@@ -696,10 +768,14 @@ class _Compiler:
         code = self.chunk.code
         start = len(code)  # end of O: the self slot of a chained call goes here
         self.expect(Tok.ID)
+        # Where each operation points: a load at its name, an index at its `.` or `[`,
+        # a call at the start of the chain (its callee, as written).
+        first = link = self.tok
         ref: _Ref = self.resolve(self.tok.text)
         self.fetch()
         while self.tok.kind in (Tok.DOT, Tok.IDXOPEN, Tok.PAROPEN):
-            self.load(ref)
+            self.load(ref, link, first)
+            link = self.tok
             if self.tok.kind is Tok.DOT:
                 ref = _TABLE
                 self.fetch()
@@ -717,33 +793,35 @@ class _Compiler:
                 self.expect(Tok.IDXCLOSE)
                 self.fetch()
                 if self.at(Tok.PAROPEN):
-                    code.insert(index_start, self.annotate("\tdup"))
+                    code.insert(index_start, (self.annotate("\tdup"), self.stmt_pos))
             else:
                 ref = _CLOSURE
                 self.fetch()
                 count = self.call_args()
                 self.fetch()
                 if self.tok.kind is Tok.PAROPEN:
-                    code.insert(start, self.annotate("\tpushnil"))
+                    code.insert(start, (self.annotate("\tpushnil"), self.stmt_pos))
                 self.emit(f"\tpushi {count}")
+        self.last_link = link
         if not lvalue or ref == _CLOSURE:
-            self.load(ref)
+            self.load(ref, link, first)
         return ref
 
-    def load(self, ref: _Ref) -> None:
-        """Turn the pending reference into a value (a nil self slot before a call)."""
+    def load(self, ref: _Ref, link: Token, first: Token) -> None:
+        """Turn the pending reference into a value (a nil self slot before a call);
+        `link` is the token of the reference, `first` the start of its chain."""
         if isinstance(ref, _Sym):
             if self.tok.kind is Tok.PAROPEN:
                 self.emit("\tpushnil")
             if ref.is_global:
-                self.emit(f"\tpushs {ref.pos}")
-                self.emit("\tgload")
+                self.emit(f"\tpushs {ref.pos}", link)
+                self.emit("\tgload", link)
             else:
-                self.emit(f"\tlload {ref.pos}")
+                self.emit(f"\tlload {ref.pos}", link)
         elif ref == _TABLE:
-            self.emit("\ttget")
+            self.emit("\ttget", link)
         else:
-            self.emit("\tcallc")
+            self.emit("\tcallc", first)
 
 
 def _push_const(text: str) -> str:
@@ -763,7 +841,14 @@ def _expect_hint(kind: Tok, found: Token) -> str | None:
 
 
 def compile_asm(source: bytes, path: str, include_dirs: Sequence[str] = ()) -> str:
-    """Compile Buzz source to .basm text exactly as the reference `bzzparse` does.
+    """Compile Buzz source to .basm text exactly as the reference `bzzparse` does
+    (see `compile_marked`)."""
+    return compile_marked(source, path, include_dirs)[0]
+
+
+def compile_marked(source: bytes, path: str, include_dirs: Sequence[str] = ()) -> tuple[str, Marks]:
+    """Compile Buzz source to .basm text exactly as the reference `bzzparse` does, with
+    the marks of the source map (the true position of each instruction line).
 
     The text holds one character per byte (latin-1), like every Buzz string in
     this project: write it with `encoding="latin-1"` to get the reference bytes.
@@ -776,7 +861,7 @@ def compile_asm(source: bytes, path: str, include_dirs: Sequence[str] = ()) -> s
     """
     compiler = _Compiler(TokenStream(Lexer(source, path, include_dirs)))
     try:
-        return compiler.script()
+        return compiler.script(), compiler.marks
     except BuzzCompileError as exc:
         error = exc
     except RecursionError:

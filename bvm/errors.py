@@ -17,6 +17,8 @@ translator's `NotStructured`) are not part of it; they never reach a host.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 
 class BvmError(Exception):
     """The root of every error bvm raises."""
@@ -60,25 +62,77 @@ class BuzzLoadError(BvmError):
 
 
 class BuzzError(BvmError):
-    """A Buzz runtime error, reported as `file:line:col: message` once located.
+    """A Buzz runtime error, reported as `file:line:col: message` once located, followed
+    by the Buzz call stack when it happened inside functions:
 
-    `offset` is the bytecode offset the error is attributed to (the reference's
-    `oldpc` rules); `location` is `(file, line, col)` from the debug info.
+        robot.bzz:3:13: division by zero
+          in ratio, called at robot.bzz:7:10
+          in step, called by the host
+
+    `offset` is the bytecode offset the reference attributes the error to (its `oldpc`
+    rules), `op_offset` the failing instruction's own; `location` is `(file, line, col)`
+    of the failing operation (from the source map, else the reference's from the .bdb).
+    `stack` lists the functions it happened in, innermost first.
     """
 
     def __init__(self, message: str, offset: int | None = None) -> None:
         super().__init__(message)
         self.message = message
         self.offset = offset
+        self.op_offset: int | None = None
         self.location: tuple[str, int, int] | None = None
+        self.stack: list[StackEntry] = []
 
-    def __str__(self) -> str:
+    @property
+    def headline(self) -> str:
+        """The first line: `file:line:col: message` (or the offset, or just the message)."""
         if self.location is not None:
             file, line, col = self.location
             return f"{file}:{line}:{col}: {self.message}"
         if self.offset is not None:
             return f"bytecode offset {self.offset}: {self.message}"
         return self.message
+
+    def __str__(self) -> str:
+        return "\n".join([self.headline, *stack_lines(self.stack)])
+
+
+@dataclass(frozen=True)
+class StackEntry:
+    """One Buzz function an error happened in, and where it was called from: `called_at`
+    is `file:line:col` (or `bytecode offset N`), None when the host called it."""
+
+    function: str
+    called_at: str | None
+
+    def __str__(self) -> str:
+        if self.called_at is None:
+            return f"  in {self.function}, called by the host"
+        return f"  in {self.function}, called at {self.called_at}"
+
+
+#: The most call-stack lines an error shows: the innermost and outermost halves.
+MAX_STACK_LINES = 20
+
+
+def stack_lines(stack: list[StackEntry]) -> list[str]:
+    """The call stack as text lines, innermost first: repeats (recursion) folded into one
+    line, and a very deep stack cut in the middle."""
+    lines: list[str] = []
+    k = 0
+    while k < len(stack):
+        n = 1
+        while k + n < len(stack) and stack[k + n] == stack[k]:
+            n += 1
+        lines.append(str(stack[k]))
+        if n > 1:
+            lines.append(f"  ... the same call {n - 1} more times")
+        k += n
+    if len(lines) > MAX_STACK_LINES:
+        half = MAX_STACK_LINES // 2
+        hidden = len(lines) - 2 * half
+        lines = [*lines[:half], f"  ... {hidden} more lines", *lines[-half:]]
+    return lines
 
 
 class BuzzBudgetExceeded(BuzzError):

@@ -5,9 +5,10 @@ hand-made or hostile bytecode whose control flow has no structured shape, and ca
 with an unexpected number of arguments. It is also the oracle the translator is fuzzed
 against. It is small and slow on purpose; speed lives in the translator.
 
-Errors are attributed to `oldpc` following the reference's rules (docs/bytecode.md#step-loop):
-an exception leaving a frame records that frame's `oldpc` (see `recorded_pcs`), which the
-locator in bvm/vm.py reads for the innermost interpreted frame.
+Errors are attributed to `oldpc` following the reference's rules (docs/bytecode.md#step-loop),
+and to the failing instruction itself for the source map: an exception leaving a frame
+records that frame's `oldpc`, instruction and entry (see `recorded_pcs`), which the
+locator in bvm/vm.py reads for the error's position and call stack.
 """
 
 from __future__ import annotations
@@ -60,10 +61,16 @@ MAX_LOCALS = 4096
 #: The attribute of an exception that maps interpreted frames' traceback entries to pcs.
 PCS_ATTRIBUTE = "bvm_interpreter_pcs"
 
+#: The entry recorded for the global code (and the load-time prologue): no function.
+TOPLEVEL = -1
 
-def recorded_pcs(exc: BaseException) -> dict[TracebackType, int]:
-    """The `oldpc` of each interpreted frame `exc` left, by the frame's traceback entry."""
-    pcs: dict[TracebackType, int] = exc.__dict__.get(PCS_ATTRIBUTE, {})
+
+def recorded_pcs(exc: BaseException) -> dict[TracebackType, tuple[int, int, int]]:
+    """For each interpreted frame `exc` left, by the frame's traceback entry: its `oldpc`
+    (the reference's error offset), the offset of the instruction it was running (the
+    failing operation, or the call the error came through) and the function's entry
+    address (`TOPLEVEL` for the global code)."""
+    pcs: dict[TracebackType, tuple[int, int, int]] = exc.__dict__.get(PCS_ATTRIBUTE, {})
     return pcs
 
 
@@ -97,6 +104,8 @@ def interpret(
     if lsyms is None:
         lsyms = []
     oldpc = pc
+    entry = TOPLEVEL if toplevel else pc
+    ins = None  # the instruction running, for the error locator (None: pc does not decode)
     try:
         while True:
             ins = decode(pc)
@@ -268,7 +277,11 @@ def interpret(
         # for an interpreted one the `oldpc` it had: recorded on the exception, keyed by
         # this frame's traceback entry, only when one leaves (no cost on the way). Inline,
         # not a call: at the recursion limit a call would raise anew.
-        e.__dict__.setdefault(PCS_ATTRIBUTE, {})[e.__traceback__] = oldpc
+        e.__dict__.setdefault(PCS_ATTRIBUTE, {})[e.__traceback__] = (
+            oldpc,
+            oldpc if ins is None else ins.addr,
+            entry,
+        )
         raise
 
 

@@ -3,7 +3,9 @@
 Positions: `line` is 1-based and only advances on a newline token or at the end of
 a `#` comment (raw newlines inside string literals do not count); `col` is the
 0-based byte offset in the line, reset only when `line` advances. Every token
-records the realpath of its file, which ends up in the debug info. The reference
+records the realpath of its file, which ends up in the debug info. Errors and the source
+map (bvm/srcmap.py) use each token's `where` instead: the true line and a 1-based column,
+as editors count them. The reference
 turns lexer errors into an end of file; here they are `BuzzCompileError`s.
 """
 
@@ -104,7 +106,8 @@ class Token:
 
     `line`/`col`/`file` are the reference's position, used for .basm annotations
     (the EOF token is 0, 1, `(null)`). `where` is the place to report errors at:
-    (path as opened, line, col); for EOF it is the end of the last real token.
+    (path as opened, true line, 1-based column), every newline counted, as editors
+    number them; for EOF it is the end of the last real token.
     `newline_before` tells whether a line break separates it from the previous token.
     """
 
@@ -127,6 +130,10 @@ class _Source:
     pos: int = 0
     line: int = 1
     col: int = 0
+    # The true position, for error messages and the source map: every newline counts
+    # (the reference's `line` misses those inside strings).
+    true_line: int = 1
+    line_start: int = 0  # byte offset where the true line starts
 
 
 def decode(raw: bytes) -> str:
@@ -149,11 +156,12 @@ class Lexer:
         self._stack: list[_Source] = [main]
         self._seen: set[str] = {main.realpath}  # include-once, by realpath
         self._include_dirs = list(include_dirs)
-        self._last_end: tuple[str, int, int] = (path, 1, 0)
+        self._last_end: tuple[str, int, int] = (path, 1, 1)
         self.main_path = path
 
-    def _error(self, src: _Source, col: int, message: str, hint: str | None = None) -> NoReturn:
-        raise BuzzCompileError(src.path, src.line, col, message, hint)
+    def _error(self, src: _Source, pos: int, message: str, hint: str | None = None) -> NoReturn:
+        """A compile error at byte `pos` of `src`, at its true line and 1-based column."""
+        raise BuzzCompileError(src.path, src.true_line, pos - src.line_start + 1, message, hint)
 
     def next_token(self) -> Token:
         """Return the next token, skipping statement ends (newlines and `;`)."""
@@ -174,6 +182,8 @@ class Lexer:
                 src.pos += 1
                 src.line += 1
                 src.col = 0
+                src.true_line += 1
+                src.line_start = src.pos
                 newline = True
                 continue
             if c == 0x3B:  # ';' is a statement end, which the parser ignores
@@ -185,13 +195,15 @@ class Lexer:
                 src.pos = (end if end >= 0 else len(data)) + 1
                 src.line += 1
                 src.col = 0
+                src.true_line += 1
+                src.line_start = src.pos
                 newline = True
                 continue
             if data.startswith(b"include", pos) and data[pos + 7 : pos + 8] not in _ID_BYTES:
                 self._include(src)
                 continue
             tok = self._token(src, newline)
-            self._last_end = (src.path, tok.line, src.col)
+            self._last_end = (src.path, src.true_line, src.pos - src.line_start + 1)
             return tok
         path, line, col = self._last_end
         return Token(Tok.EOF, "", 0, 1, NULL_FILE, (path, line, col), newline)
@@ -231,11 +243,12 @@ class Lexer:
                 if c == 0x5F
                 else "Buzz source is ASCII outside strings and comments"
             )
-            self._error(src, col, f"Syntax error: unknown character {_quote_char(c)}", hint)
+            self._error(src, start, f"Syntax error: unknown character {_quote_char(c)}", hint)
         text = data[start:end].decode("ascii")
         src.pos = end
         src.col += end - start
-        return Token(kind, text, src.line, col, src.realpath, (src.path, src.line, col), newline)
+        where = (src.path, src.true_line, start - src.line_start + 1)
+        return Token(kind, text, src.line, col, src.realpath, where, newline)
 
     def _string(self, src: _Source, newline: bool) -> Token:
         data, start, col = src.data, src.pos, src.col
@@ -248,7 +261,7 @@ class Lexer:
             if p < 0:
                 self._error(
                     src,
-                    col,
+                    start,
                     "Syntax error: string closing quote not found",
                     f"add the closing {chr(quote)} (strings may span lines)",
                 )
@@ -268,34 +281,31 @@ class Lexer:
             else:
                 out.append(b)
                 i += 1
+        where = (src.path, src.true_line, start - src.line_start + 1)
         src.pos = p + 1
         src.col += p + 1 - start  # raw newlines inside do not reset the column either
-        return Token(
-            Tok.STRING,
-            decode(bytes(out)),
-            src.line,
-            col,
-            src.realpath,
-            (src.path, src.line, col),
-            newline,
-        )
+        inner = data.count(b"\n", start, p)
+        if inner:  # the true position does move
+            src.true_line += inner
+            src.line_start = data.rfind(b"\n", start, p) + 1
+        return Token(Tok.STRING, decode(bytes(out)), src.line, col, src.realpath, where, newline)
 
     def _include(self, src: _Source) -> None:
-        data, col = src.data, src.col
+        data, at = src.data, src.pos
         p = src.pos + 7
         while data[p] in b" \t":
             p += 1
         quote = data[p]
         if quote not in b"'\"":
             self._error(
-                src, col, "Syntax error: expected string after include", 'write include "file.bzz"'
+                src, at, "Syntax error: expected string after include", 'write include "file.bzz"'
             )
         end = p + 1
         while data[end] != quote:
             if data[end] == 0x0A:
                 self._error(
                     src,
-                    col,
+                    at,
                     "Syntax error: expected end of string",
                     "the file name must be quoted on one line",
                 )
@@ -303,12 +313,12 @@ class Lexer:
         name = os.fsdecode(data[p + 1 : end])
         src.col += end + 1 - src.pos
         src.pos = end + 1
-        found = self._find(name, src, col)
+        found = self._find(name, src, at)
         if found is None:
             searched = ", ".join(repr(d) for d in self._search_dirs(src))
             self._error(
                 src,
-                col,
+                at,
                 f"Can't find file '{name}'",
                 f"Can't read '{name}' in the working directory nor in: {searched} "
                 "(add directories with -I or BUZZ_INCLUDE_PATH)",
@@ -327,7 +337,7 @@ class Lexer:
         dirs.append(os.path.dirname(src.path) or ".")
         return dirs
 
-    def _find(self, name: str, src: _Source, col: int) -> tuple[str, bytes] | None:
+    def _find(self, name: str, src: _Source, at: int) -> tuple[str, bytes] | None:
         # The reference looks relative to the process cwd first, then BUZZ_INCLUDE_PATH.
         for candidate in [name] + [os.path.join(d, name) for d in self._search_dirs(src)]:
             if not os.path.isfile(candidate):  # regular files only: never block on a device
@@ -338,7 +348,7 @@ class Lexer:
             except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
                 continue
             except OSError as exc:
-                self._error(src, col, f"Can't read '{name}': {exc.strerror}")
+                self._error(src, at, f"Can't read '{name}': {exc.strerror}")
         return None
 
 
@@ -346,7 +356,12 @@ _ID_BYTES = frozenset(bytes([b]) for b in _IDCHARS)
 
 
 def _debug_name(path: str) -> str:
-    """The realpath as it goes into .basm text: its file-system bytes, one char a byte."""
+    """The realpath as it goes into .basm text: its file-system bytes, one char a byte.
+
+    A source that is no file (`<buzz>`, the default name of compiled text) keeps its name:
+    the working directory has nothing to do with it."""
+    if path.startswith("<") and path.endswith(">"):
+        return path
     return decode(os.fsencode(os.path.realpath(path)))
 
 

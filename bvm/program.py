@@ -1,4 +1,5 @@
-"""A loaded Buzz program: the .bo bytecode, its string table and its .bdb debug info.
+"""A loaded Buzz program: the .bo bytecode, its string table, its .bdb debug info and,
+when the compiler made one, its source map (the .bpos sidecar, bvm/srcmap.py).
 
 Bytecode arrives over the air, so everything here is bounds-checked and capped: a
 truncated, corrupted or hostile file gives a `BuzzLoadError`, never an exception of
@@ -7,12 +8,17 @@ another kind and never unbounded memory.
 
 from __future__ import annotations
 
+import logging
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bvm import srcmap as _srcmap
 from bvm.errors import BuzzLoadError
 from bvm.opcodes import FIRST_ARG_OPCODE, NUM_OPCODES, Op
+from bvm.srcmap import Position, SourceMap
+
+_log = logging.getLogger("bvm")
 
 #: Largest .bo or .bdb accepted (a real script is a few KiB).
 MAX_FILE_BYTES = 16 * 1024 * 1024
@@ -56,15 +62,18 @@ class Instruction:
 
 @dataclass
 class Program:
-    """Compiled Buzz bytecode (`.bytecode`, the .bo bytes) with its debug info (`.debug`)."""
+    """Compiled Buzz bytecode (`.bytecode`, the .bo bytes) with its debug info (`.debug`)
+    and, when compiled from source here, its source map (`.srcmap`)."""
 
     bytecode: bytes
     debug: bytes = b""
     path: str = "<buzz>"
+    srcmap: SourceMap | None = None
     strings: list[str] = field(init=False)
     code_start: int = field(init=False)
     locations: dict[int, tuple[str, int, int]] = field(init=False)
     _ids: list[str] = field(init=False, repr=False)
+    _names: dict[int, str] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.bytecode) > MAX_FILE_BYTES or len(self.debug) > MAX_FILE_BYTES:
@@ -77,7 +86,11 @@ class Program:
 
     @classmethod
     def load(cls, bo_path: str | Path) -> Program:
-        """Load a .bo file and, when present, the .bdb beside it."""
+        """Load a .bo file and, when present, the .bdb and .bpos beside it.
+
+        A .bpos that cannot be read, is malformed, or was made for other bytecode is
+        ignored with a warning on the `bvm` logger: errors then point where the
+        reference's would (from the .bdb)."""
         bo_path = Path(bo_path)
         try:
             bytecode = _read_capped(bo_path)
@@ -85,7 +98,62 @@ class Program:
             debug = _read_capped(bdb_path) if bdb_path.exists() else b""
         except OSError as e:
             raise BuzzLoadError(f"{bo_path}: cannot read: {e.strerror or e}") from None
-        return cls(bytecode, debug, str(bo_path))
+        program = cls(bytecode, debug, str(bo_path))
+        bpos_path = bo_path.with_suffix(".bpos")
+        try:
+            if bpos_path.exists():
+                data = _read_capped(bpos_path)
+                program.srcmap = _srcmap.decode(data, bytecode, str(bpos_path))
+        except OSError as e:
+            _log.warning("%s: source map ignored: cannot read: %s", bpos_path, e.strerror or e)
+        except BuzzLoadError as e:
+            _log.warning("source map ignored, errors located from the .bdb: %s", e)
+        return program
+
+    def position(self, op_offset: int | None, offset: int | None) -> Position | None:
+        """Where to report an error: the source map's position of the failing instruction
+        (`op_offset`), else the .bdb entry of the reference's error offset (`offset`)."""
+        if op_offset is not None and self.srcmap is not None:
+            found = self.srcmap.position(op_offset)
+            if found is not None:
+                return found
+        return self.locations.get(offset) if offset is not None else None
+
+    def function_name(self, addr: int) -> str:
+        """How a call stack names the function at `addr`: its name, `<lambda at
+        FILE:LINE:COL>` for an anonymous one, else the name the load-time prologue gives
+        it, else `<function at offset N>`."""
+        fn = self.srcmap.functions.get(addr) if self.srcmap is not None else None
+        if fn is not None:
+            if fn.name:
+                return fn.name
+            if fn.where is not None:
+                file, line, col = fn.where
+                return f"<lambda at {file}:{line}:{col}>"
+        name = self._prologue_names().get(addr)
+        return name if name is not None else f"<function at offset {addr}>"
+
+    def _prologue_names(self) -> dict[int, str]:
+        """Named functions by address, from the prologue's `pushs name; pushcn addr;
+        gstore` triples (in every .bo, with or without debug files)."""
+        names = self._names
+        if names is None:
+            names = {}
+            pc = self.code_start
+            while True:
+                a = self.decode(pc)
+                b = self.decode(a.next) if a is not None else None
+                c = self.decode(b.next) if b is not None else None
+                if a is None or b is None or c is None:
+                    break
+                if a.op is not Op.PUSHS or b.op is not Op.PUSHCN or c.op is not Op.GSTORE:
+                    break
+                name = self.string(a.int_arg)
+                if name is not None:
+                    names.setdefault(b.int_arg, name)
+                pc = c.next
+            self._names = names
+        return names
 
     def string(self, sid: int) -> str | None:
         """The string a `pushs` id names, or None when no string has that id."""

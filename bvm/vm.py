@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from bvm import translate as _translate
 from bvm.budget import Budget, BudgetTimeout
-from bvm.errors import BuzzBudgetExceeded, BuzzError
-from bvm.interp import Halt, interpret, recorded_pcs
+from bvm.errors import BuzzBudgetExceeded, BuzzError, StackEntry
+from bvm.interp import TOPLEVEL, Halt, interpret, recorded_pcs
 from bvm.opcodes import Op
 from bvm.program import Program
 from bvm.translate import DEFAULT_OPTIONS, TranslateOptions
@@ -641,11 +641,23 @@ class VM:
             self._depth = 0
 
     def _fail(self, err: BuzzError, cause: BaseException | None = None) -> BuzzError:
-        """Enter the error state with `err`, located where `cause` was raised."""
+        """Enter the error state with `err`, located where `cause` was raised: the
+        failing operation's position and the Buzz call stack. (Only here, once an error
+        happened, are tracebacks read: locating costs the running code nothing.)"""
+        program = self.program
         if err.offset is None and cause is not None:
-            err.offset = _locate(cause)
-        if err.offset is not None and self.program is not None:
-            err.location = self.program.location(err.offset)
+            frames = _buzz_frames(cause)
+            if frames:
+                err.offset = frames[-1][1]
+            # Frames still entering a function (a specialized entry forwarding to the
+            # general one, or a call that overflowed the stack) are not running Buzz code.
+            running = [f for f in frames if f[2] != _translate.NO_OP]
+            if running:
+                err.op_offset = running[-1][2]
+            if program is not None:
+                err.stack = _stack(program, running)
+        if program is not None and (err.offset is not None or err.op_offset is not None):
+            err.location = program.position(err.op_offset, err.offset)
         self.state = "error"
         self.error = err
         return err
@@ -672,22 +684,67 @@ def _unexpected(e: Exception) -> BuzzError:
     return BuzzError(f"host function error: {type(e).__name__}: {e}")
 
 
-def _locate(exc: BaseException) -> int | None:
-    """Bytecode offset of the innermost Buzz frame (interpreted or translated) that `exc`
-    was raised through."""
-    offset = None
+#: A Buzz frame an error went through: (function entry or TOPLEVEL, the reference's error
+#: offset, the instruction running or NO_OP).
+_Frame = tuple[int, int, int]
+
+
+def _buzz_frames(exc: BaseException) -> list[_Frame]:
+    """The Buzz frames (interpreted or translated) `exc` was raised through, outermost
+    first. A frame the exception passed twice (re-raised by `call_failed`) counts once,
+    where it was last."""
+    frames: dict[int, _Frame] = {}
     pcs = recorded_pcs(exc)
     tb = exc.__traceback__
     while tb is not None:
         code = tb.tb_frame.f_code
         if code is _INTERP_CODE:
-            offset = pcs.get(tb, offset)
+            recorded = pcs.get(tb)
+            if recorded is not None:
+                oldpc, op, entry = recorded
+                frames[id(tb.tb_frame)] = (entry, oldpc, op)
         else:
             lines = _translate.LINE_MAPS.get(code)
-            if lines is not None and tb.tb_lineno < len(lines):
-                offset = lines[tb.tb_lineno]
+            n = tb.tb_lineno
+            if lines is not None and n is not None and n < len(lines.offsets):
+                entry = TOPLEVEL if lines.toplevel else lines.addr
+                frames[id(tb.tb_frame)] = (entry, lines.offsets[n], lines.ops[n])
         tb = tb.tb_next
-    return offset
+    return list(frames.values())
+
+
+def raised_at(exc: BaseException, program: Program) -> tuple[str, int, int] | None:
+    """(file, line, col) of the Buzz operation `exc` was raised in (a KeyboardInterrupt
+    in a script, say), if it went through Buzz code."""
+    frames = _buzz_frames(exc)
+    if not frames:
+        return None
+    _, offset, op = frames[-1]
+    return program.position(op, offset)
+
+
+def _stack(program: Program, frames: list[_Frame]) -> list[StackEntry]:
+    """The call stack of running Buzz frames (outermost first), innermost first: each
+    function with where its caller called it (None: from the host)."""
+    stack = []
+    # Deep recursion repeats a few (function, call site) pairs thousands of times.
+    made: dict[tuple[int, int, int], StackEntry] = {}
+    for k, (entry, _, _) in enumerate(frames):
+        if entry == TOPLEVEL:
+            continue
+        _, offset, op = frames[k - 1] if k else (entry, -1, -1)
+        found = made.get((entry, offset, op))
+        if found is None:
+            called_at = None
+            if k:
+                where = program.position(op, offset)
+                called_at = (
+                    f"{where[0]}:{where[1]}:{where[2]}" if where else f"bytecode offset {op}"
+                )
+            found = made[entry, offset, op] = StackEntry(program.function_name(entry), called_at)
+        stack.append(found)
+    stack.reverse()
+    return stack
 
 
 def _arity_range(func: Callable[..., Any]) -> tuple[int, int | None]:

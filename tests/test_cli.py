@@ -75,9 +75,16 @@ def test_run_steps_and_robot_id(tmp_path: Path) -> None:
     assert result.stdout == "init 4\n1\n2\nbye\n"
 
 
-def test_run_compiled_bo_uses_its_bdb_for_errors(tmp_path: Path) -> None:
+def test_run_compiled_bo_uses_its_bpos_then_its_bdb_for_errors(tmp_path: Path) -> None:
     script = write(tmp_path / "e.bzz", "x = 1\ny = x + nil\nz = 2\n")
     assert runner.invoke(app, ["compile", str(script)]).exit_code == 0
+    script.unlink()  # the .bo and its sidecar suffice: no source needed
+    result = runner.invoke(app, ["run", str(tmp_path / "e.bo")])
+    assert result.exit_code == 1
+    expected = f"error: {script}:2:7: type mismatch: cannot add integer and nil"
+    assert result.stderr.strip() == expected
+    # Without the sidecar, where the reference puts it (the token after), from the .bdb.
+    (tmp_path / "e.bpos").unlink()
     result = runner.invoke(app, ["run", str(tmp_path / "e.bo")])
     assert result.exit_code == 1
     expected = f"error: {script.resolve()}:3:0: type mismatch: cannot add integer and nil"

@@ -120,7 +120,7 @@ def test_an_unexpected_exception_is_an_error_line(
     def boom(*_: object) -> str:
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(bvm, "compile_to_asm", boom)
+    monkeypatch.setattr(bvm, "compile_source", boom)
     result = runner.invoke(app, ["compile", str(files / "good.bzz")])
     assert result.exit_code == 1
     assert result.stderr.startswith("error: unexpected RuntimeError: boom"), result.stderr

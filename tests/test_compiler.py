@@ -280,7 +280,7 @@ def test_local_var_annotations_sit_on_the_equals() -> None:
 
 def test_duplicated_local_is_an_error_but_global_redeclaration_is_fine() -> None:
     err = error("function g(a) { var a = 1 }")
-    assert (err.message, err.line, err.col) == ("Duplicated symbol 'a'", 1, 20)
+    assert (err.message, err.line, err.col) == ("Duplicated symbol 'a'", 1, 21)
     assert code("var a\nvar a") == ["pushs 0", "pushnil", "gstore"] * 2
 
 
@@ -345,23 +345,23 @@ def test_string_literal_bytes_reach_the_basm() -> None:
 @pytest.mark.parametrize(
     ("src", "message", "line", "col"),
     [
-        ("x = 1 == 1", "Syntax error: expected identifier, found == != < <= > >=", 1, 6),
-        ("{ x = 1 }", "Syntax error: expected identifier, found {", 1, 0),
+        ("x = 1 == 1", "Syntax error: expected identifier, found == != < <= > >=", 1, 7),
+        ("{ x = 1 }", "Syntax error: expected identifier, found {", 1, 1),
         ("x.y", "Syntax error: expected function call or assignment", 0, 1),
-        ("f() = 1", "Syntax error: can't have a function call as lvalue", 1, 4),
-        ("5", "Syntax error: expected identifier, found constant", 1, 0),
-        ("x = a and not b", "Syntax error: expected identifier, found and or", 1, 6),
-        ("if (a < b < c) x = 1", "Syntax error: expected ), found == != < <= > >=", 1, 10),
-        ("x = t.3", "Syntax error: expected identifier, found constant", 1, 6),
-        ("x = (f)()", "Syntax error: expected identifier, found (", 1, 7),
-        ("x = (1", "Syntax error: expected ), found end of file", 1, 6),
+        ("f() = 1", "Syntax error: can't have a function call as lvalue", 1, 5),
+        ("5", "Syntax error: expected identifier, found constant", 1, 1),
+        ("x = a and not b", "Syntax error: expected identifier, found and or", 1, 7),
+        ("if (a < b < c) x = 1", "Syntax error: expected ), found == != < <= > >=", 1, 11),
+        ("x = t.3", "Syntax error: expected identifier, found constant", 1, 7),
+        ("x = (f)()", "Syntax error: expected identifier, found (", 1, 8),
+        ("x = (1", "Syntax error: expected ), found end of file", 1, 7),
         (
             "for (var i = 0, i < 1, i = i + 1) x = 1",
             "Syntax error: expected identifier, found var",
             1,
-            5,
+            6,
         ),
-        ("return", "Syntax error: expected identifier, found end of file", 1, 6),
+        ("return", "Syntax error: expected identifier, found end of file", 1, 7),
     ],
 )
 def test_syntax_errors(src: str, message: str, line: int, col: int) -> None:
@@ -375,7 +375,7 @@ def test_syntax_errors(src: str, message: str, line: int, col: int) -> None:
 def test_error_message_format() -> None:
     err = error("x = 1 == 1")
     assert str(err) == (
-        f"{P}:1:6: Syntax error: expected identifier, found == != < <= > >=\n"
+        f"{P}:1:7: Syntax error: expected identifier, found == != < <= > >=\n"
         "  hint: a comparison is not an expression here: parenthesize it, e.g. x = (a == b)"
     )
 
@@ -429,7 +429,7 @@ def test_return_fallback_inside_a_block_keeps_its_locals() -> None:
 
 def test_return_fallback_that_also_fails_reports_the_greedy_error() -> None:
     err = error("function f() { return\n 1 + }")
-    assert (err.message, err.line, err.col) == ("Syntax error: expected identifier, found }", 2, 5)
+    assert (err.message, err.line, err.col) == ("Syntax error: expected identifier, found }", 2, 6)
 
 
 def test_return_at_end_of_file_stays_an_error() -> None:
@@ -438,7 +438,7 @@ def test_return_at_end_of_file_stays_an_error() -> None:
 
 def test_return_on_the_same_line_is_never_a_fallback() -> None:
     err = error("function f(x) { if(x) return y = 2 }")
-    assert (err.message, err.col) == ("Syntax error: expected identifier, found =", 31)
+    assert (err.message, err.col) == ("Syntax error: expected identifier, found =", 32)
 
 
 # -- deliberate decision 2: strings ----------------------------------------------------
@@ -453,7 +453,7 @@ def test_newline_in_string_value_is_an_error(src: bytes) -> None:
     err = error(src)
     assert "newline" in err.message and err.hint
     where = src.rfind(b"=") + 2 if b"=" in src else 4
-    assert err.col == where - (src.rfind(b"\n", 0, where) + 1)
+    assert err.col == where - src.rfind(b"\n", 0, where)  # 1-based
 
 
 def test_newline_in_string_keeps_line_numbers_reference_like() -> None:
@@ -466,13 +466,13 @@ def test_newline_in_string_keeps_line_numbers_reference_like() -> None:
 
 def test_lexer_error_does_not_truncate() -> None:
     err = error("x = 1\n_y = 2")
-    assert (err.line, err.col) == (2, 0) and "unknown character '_'" in err.message
+    assert (err.line, err.col) == (2, 1) and "unknown character '_'" in err.message
     assert error("x = 1\ny = 'abc").message == "Syntax error: string closing quote not found"
 
 
 def test_stray_closing_brace_is_an_error() -> None:
     err = error("x = 1\n}\ny = 2")
-    assert (err.line, err.col) == (2, 0) and "}" in err.message and err.hint
+    assert (err.line, err.col) == (2, 1) and "}" in err.message and err.hint
 
 
 # -- deliberate decision 4: include ----------------------------------------------------
@@ -540,7 +540,7 @@ def test_include_not_found(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> N
     monkeypatch.setenv("BUZZ_INCLUDE_PATH", "/nonexistent/a")
     main = write(tmp_path / "main.bzz", 'x = 1\n  include "nope.bzz"\n')
     err = error(main.read_bytes(), str(main), include_dirs=("/nonexistent/b",))
-    assert str(err).startswith(f"{main}:2:2: Can't find file 'nope.bzz'")
+    assert str(err).startswith(f"{main}:2:3: Can't find file 'nope.bzz'")
     assert err.hint is not None
     assert "/nonexistent/a" in err.hint and "/nonexistent/b" in err.hint
     assert "Can't read 'nope.bzz'" in err.hint  # the reference's own wording

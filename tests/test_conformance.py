@@ -6,12 +6,16 @@ Corpus format (one script per behaviour, see the comment at the top of each scri
   runner call init()/step() N times/destroy() and set the robot id.
 * ``NAME.out`` -- the exact expected stdout (what the script logs).
 * ``NAME.err`` -- present when the script must fail (exit code 1). Line 1 is the expected
-  location ``LINE:COL`` (1-based line, 0-based column: docs/language.md#source-positions,
-  #annotation-rule, docs/bytecode.md#errors), optionally prefixed by the name of the file it
-  must be in (``inc.bzz:LINE:COL``, for included code), or
-  ``*`` when it is not pinned. Line 2 is the expected start of the message (the text after
-  ``file:line:col: ``); an empty line 2 accepts any message, a line 2 starting with ``~`` is
-  matched as a substring.
+  location ``LINE:COL``, optionally prefixed by the name of the file it must be in
+  (``inc.bzz:LINE:COL``, for included code), or ``*`` when it is not pinned. Line 2 is the
+  expected start of the message (the text after ``file:line:col: ``); an empty line 2 accepts
+  any message, a line 2 starting with ``~`` is matched as a substring. For a run-time error,
+  line 3 is ``at [FILE:]LINE:COL``, the failing operation's position (1-based column, from
+  the source map, docs/compat.md V17), checked on the ``.bzz`` run; line 1 is then the
+  reference's location (1-based line, 0-based column: docs/language.md#source-positions,
+  #annotation-rule, docs/bytecode.md#errors), checked on the script compiled to a ``.bo``
+  run without its ``.bpos`` sidecar. For a compile error line 1 is its position (1-based
+  column).
 
 The expected outputs were derived from the reference's facts (docs/language.md,
 docs/bytecode.md, docs/stdlib.md) plus the lead's compat decisions (scripts named
@@ -102,11 +106,25 @@ def test_conformance(script: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPat
         assert result.exit_code == 0, f"{script.name} should succeed{context}"
         return
 
-    location, _, message = err_file.read_text().partition("\n")
-    location = location.strip()
-    message = message.rstrip("\n")
+    err_lines = [*err_file.read_text().split("\n"), "", ""]
+    location, message, exact = err_lines[0].strip(), err_lines[1], err_lines[2].strip()
     assert result.exit_code == 1, f"{script.name} should fail with exit code 1{context}"
     assert stderr.strip(), f"{script.name} failed without a message{context}"
+    if exact:
+        assert exact.startswith("at "), f"bad line 3 in {err_file.name}"
+        _assert_located(stderr, exact[3:], message, context)
+        if location != "*":
+            # The reference's location: the compiled .bo run without its source map.
+            bo = tmp_path / "compiled" / "script.bo"
+            compiled = CliRunner().invoke(app, ["compile", str(script), "-o", str(bo)])
+            assert compiled.exit_code == 0, compiled.stderr
+            bo.with_suffix(".bpos").unlink()
+            result = CliRunner().invoke(app, [args[0], str(bo), *args[2:]])
+            context = f"\n--- the .bo without .bpos:\n{result.stderr}"
+            assert result.stdout_bytes == expected_out, f"stdout differs{context}"
+            assert result.exit_code == 1, f"{script.name} should fail{context}"
+            _assert_located(result.stderr, location, message, context)
+        return
     lines = stderr.splitlines()
     if location == "*":
         if message:
@@ -115,6 +133,12 @@ def test_conformance(script: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPat
             ) or any((message.lstrip("~") in line) for line in lines)
             assert ok, f"expected message {message!r}{context}"
         return
+    _assert_located(stderr, location, message, context)
+
+
+def _assert_located(stderr: str, location: str, message: str, context: str) -> None:
+    """Some `file:line:col: message` line of `stderr` is at `location` ([FILE:]LINE:COL)."""
+    lines = stderr.splitlines()
     want_file, _, want_pos = location.rpartition(":")
     want_file, _, want_line_text = want_file.rpartition(":")
     want_line, want_col = int(want_line_text), int(want_pos)
@@ -139,9 +163,13 @@ def test_corpus_is_complete() -> None:
         )
         err = script.with_suffix(".err")
         if err.exists():
-            loc = err.read_text().splitlines()[0].strip()
+            lines = [*err.read_text().splitlines(), "", ""]
+            loc, exact = lines[0].strip(), lines[2].strip()
             assert loc == "*" or re.fullmatch(r"(?:[\w.-]+:)?\d+:\d+", loc), (
                 f"bad location in {err.name}"
+            )
+            assert not exact or re.fullmatch(r"at (?:[\w.-]+:)?\d+:\d+", exact), (
+                f"bad exact location in {err.name}"
             )
     for orphan in CONFORMANCE.glob("*.out"):
         assert orphan.with_suffix(".bzz").exists(), f"{orphan.name} has no script"

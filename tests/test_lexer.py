@@ -97,6 +97,8 @@ def test_newline_in_string_does_not_advance_line() -> None:
     tokens = tokenize(b'x = "a\nb" y\nz', PATH)
     assert [(t.line, t.col) for t in tokens] == [(1, 0), (1, 2), (1, 4), (1, 10), (2, 0), (0, 1)]
     assert tokens[2].text == "a\nb"
+    # The true position (errors, the source map) counts it, as an editor does.
+    assert [t.where[1:] for t in tokens[:5]] == [(1, 1), (1, 3), (1, 5), (2, 4), (3, 1)]
 
 
 def test_eof_token_and_file_names(tmp_path: os.PathLike[str]) -> None:
@@ -107,9 +109,9 @@ def test_eof_token_and_file_names(tmp_path: os.PathLike[str]) -> None:
     os.symlink(real, link)
     first, eof = tokenize(b"x", link)
     assert first.file == real  # the realpath goes into debug info
-    assert first.where == (link, 1, 0)  # errors name the file as given
+    assert first.where == (link, 1, 1)  # errors name the file as given, 1-based column
     assert (eof.kind, eof.line, eof.col, eof.file) == (Tok.EOF, 0, 1, "(null)")
-    assert eof.where == (link, 1, 1)  # EOF errors point just past the last token
+    assert eof.where == (link, 1, 2)  # EOF errors point just past the last token
 
 
 def test_newline_before_flags() -> None:
@@ -140,18 +142,18 @@ def test_string_bytes_are_kept_one_char_per_byte() -> None:
 
 def test_unterminated_string_is_an_error() -> None:
     err = lex_error(b'x = 1\ny = "abc')
-    assert (err.path, err.line, err.col) == (PATH, 2, 4)
+    assert (err.path, err.line, err.col) == (PATH, 2, 5)
     assert "string closing quote not found" in err.message
 
 
 @pytest.mark.parametrize(
     ("src", "line", "col", "what"),
     [
-        (b"x = 1\n_y = 2", 2, 0, "'_'"),
-        (b"x = $", 1, 4, "'$'"),
-        (b"x = \xc3\xa9", 1, 4, "byte 0xc3"),
-        (b"x\v= 1", 1, 1, "byte 0x0b"),
-        (b"x = `", 1, 4, "'`'"),
+        (b"x = 1\n_y = 2", 2, 1, "'_'"),
+        (b"x = $", 1, 5, "'$'"),
+        (b"x = \xc3\xa9", 1, 5, "byte 0xc3"),
+        (b"x\v= 1", 1, 2, "byte 0x0b"),
+        (b"x = `", 1, 5, "'`'"),
     ],
 )
 def test_unknown_characters_are_errors(src: bytes, line: int, col: int, what: str) -> None:

@@ -81,6 +81,12 @@ def test_a_script_error_holds_the_vehicle_and_the_node_goes_on(rig: SimRig) -> N
     summary = node.summary()
     assert len(summary["errors"]) == 1 and "division by zero" in summary["errors"][0]  # type: ignore[index]
     assert ":12:" in summary["errors"][0]  # type: ignore[index]
+    compiled = FLY.replace("BROKEN == 1", "1 == 1")  # as make_node compiles it
+    col = compiled.splitlines()[11].index("/") + 1  # at the `/` itself, the stack under it
+    assert summary["errors"][0].splitlines() == [  # type: ignore[index]
+        f"<buzz>:12:{col}: division by zero",
+        "  in step, called by the host",
+    ]
     assert summary["failsafe"].startswith("script error")  # type: ignore[union-attr]
     assert rig.link.telemetry.mode == rig.profile.autopilot.loiter_mode  # solo: hold = LOITER
     assert rig.sim.vehicle.z >= 4.5  # hovering, not landed or falling

@@ -90,6 +90,12 @@ def test_a_script_error_holds_that_robot_and_the_rest_go_on(tmp_path: Path) -> N
     errors = sim.summary()["errors"]
     assert len(errors) == 1 and errors[0]["robot"] == 3
     assert "behavior.bzz:16:" in errors[0]["error"] and "division by zero" in errors[0]["error"]
+    # At the `/` itself (1-based column), with the Buzz call stack under it.
+    col = TAKEOFF.splitlines()[15].index("/") + 1
+    assert errors[0]["error"].splitlines() == [
+        f"{cfg.script}:16:{col}: division by zero",
+        "  in step, called by the host",
+    ]
     held = sim.robots[3].vehicle
     assert held.z >= 4.5 and held.velocity == (0.0, 0.0, 0.0)  # hovering, not falling
     assert all(sim.robots[i].state == "FLYING" for i in (1, 2, 4, 5))

@@ -18,11 +18,17 @@ from bvm.values import Table, format_value
 BOTH = pytest.mark.parametrize("translate", [True, False], ids=["translated", "interpreted"])
 
 
-def make_vm(src: str, translate: bool = True, **kwargs: object) -> tuple[bvm.VM, list[str]]:
-    """A VM running `src` with a `log` that records its lines."""
+def make_vm(
+    src: str, translate: bool = True, srcmap: bool = True, **kwargs: object
+) -> tuple[bvm.VM, list[str]]:
+    """A VM running `src` with a `log` that records its lines (`srcmap=False`: as a .bo
+    loaded without its .bpos sidecar, errors located from the .bdb alone)."""
     lines: list[str] = []
     vm = bvm.VM(translate=translate, **kwargs)  # type: ignore[arg-type]
-    vm.load(bvm.compile_source(src, "prog.bzz"))
+    program = bvm.compile_source(src, "prog.bzz")
+    if not srcmap:
+        program = bvm.Program(program.bytecode, program.debug, "prog.bo")
+    vm.load(program)
     vm.register("log", lambda *args: lines.append("".join(map(format_value, args))))
     vm.execute()
     return vm, lines
@@ -83,7 +89,7 @@ def test_register_wrong_argument_count_is_a_buzz_error() -> None:
 def test_host_exception_becomes_located_buzz_error() -> None:
     vm, _ = make_vm("function go() {\n  return boom()\n}")
     vm.register("boom", lambda: 1 / 0)
-    with pytest.raises(bvm.BuzzError, match=r"prog.bzz:3:0: host function error: ZeroDivision"):
+    with pytest.raises(bvm.BuzzError, match=r"prog.bzz:2:10: host function error: ZeroDivision"):
         vm.call("go")
     assert vm.state == "error"
     vm.reset_error()
@@ -109,10 +115,43 @@ def test_host_function_as_callback(translate: bool) -> None:
 # ---------------------------------------------------------------- errors and locations
 
 
+# The source map puts an error at the failing operation: an operator, the `.` or `[` of an
+# index, the start of a call (errors inside a host function too); 1-based columns.
+LOCATED = [
+    ("x = 1\ny = x + nil\nz = 0", (2, 7), "type mismatch: cannot add integer and nil"),
+    ("function f() {\n  return 1 / 0\n}\nf()\nz = 0", (2, 12), "division by zero"),
+    ("x = nil\nx.y = 1\nz = 0", (2, 2), "type mismatch: expected table, got nil"),
+    ("f = 3\nf(1)\nz = 0", (2, 1), "type mismatch: expected closure, got integer"),
+    ("t = {}\nt[nil] = 2\nz = 0", (2, 2), "can't be used as table key"),
+    ("s = string.length(3)\nz = 0", (1, 5), "type mismatch: expected string, got integer"),
+    ('x = 1\n\nvar z = 3 + "hello"\n\n# a comment\nw = 0', (3, 11), "cannot add integer"),
+    ("x = 1\nt = {}\nr = t.a.b", (3, 8), "type mismatch: expected table, got nil"),
+    ('x = -"s"', (1, 5), "type mismatch"),
+    ("x = !1.5", (1, 5), "expected integer, got float"),
+    ("if (nil < 1) {}", (1, 9), "cannot order nil"),
+    ("return 1", (1, 1), "return outside a function"),
+    ('x = "a"\ny = (1 + 2) * x', (2, 13), "type mismatch"),
+]
+
+
+@BOTH
+@pytest.mark.parametrize(("src", "where", "message"), LOCATED)
+def test_runtime_errors_name_the_failing_operation(
+    translate: bool, src: str, where: tuple[int, int], message: str
+) -> None:
+    with pytest.raises(bvm.BuzzError) as info:
+        make_vm(src, translate)
+    err = info.value
+    assert err.location == ("prog.bzz", *where), str(err)
+    assert message in err.message
+    assert str(err).startswith(f"prog.bzz:{where[0]}:{where[1]}: ")
+
+
 @BOTH
 @pytest.mark.parametrize(
     ("src", "where", "message"),
-    # Each instruction carries the parser's lookahead token (docs/language.md#annotation-rule),
+    # Without the source map (a .bo whose .bpos is missing), as the reference: each
+    # instruction carries the parser's lookahead token (docs/language.md#annotation-rule),
     # so an error is reported at the token after the failing operation; tput errors at the
     # instruction before the tput, errors inside a host function at its call
     # (docs/bytecode.md#step-loop, #errors).
@@ -125,11 +164,11 @@ def test_host_function_as_callback(translate: bool) -> None:
         ("s = string.length(3)\nz = 0", (2, 0), "type mismatch: expected string, got integer"),
     ],
 )
-def test_runtime_error_locations(
+def test_runtime_error_locations_without_the_source_map_are_the_references(
     translate: bool, src: str, where: tuple[int, int], message: str
 ) -> None:
     with pytest.raises(bvm.BuzzError) as info:
-        make_vm(src, translate)
+        make_vm(src, translate, srcmap=False)
     err = info.value
     assert err.location is not None
     file, line, col = err.location
@@ -151,8 +190,14 @@ def test_error_in_nested_calls_is_located_in_the_innermost_buzz_frame(translate:
     vm, _ = make_vm(src, translate)
     with pytest.raises(bvm.BuzzError, match="expected table, got nil") as info:
         vm.call("outer")
-    assert info.value.location is not None
-    assert info.value.location[1:] == (3, 0), str(info.value)
+    assert info.value.location == ("prog.bzz", 2, 13), str(info.value)
+    # The Buzz call stack, innermost first; the lambda is called through foreach.
+    assert str(info.value).splitlines()[1:] == [
+        "  in inner, called at prog.bzz:6:10",
+        "  in middle, called at prog.bzz:10:31",
+        "  in <lambda at prog.bzz:10:14>, called at prog.bzz:10:3",
+        "  in outer, called by the host",
+    ]
 
 
 @BOTH

@@ -25,7 +25,7 @@ The modules, one job each:
 from __future__ import annotations
 
 from bvm.translate.build import translate
-from bvm.translate.cache import LINE_MAPS, CodeCache
+from bvm.translate.cache import LINE_MAPS, NO_OP, CodeCache, LineMap
 from bvm.translate.controlflow import NotStructured, discover
 from bvm.translate.host import TranslatorHost
 from bvm.translate.lattice import ANY, param_types
@@ -37,6 +37,8 @@ __all__ = [
     "ANY",
     "DEFAULT_OPTIONS",
     "LINE_MAPS",
+    "NO_OP",
+    "LineMap",
     "CodeCache",
     "NotStructured",
     "TranslateOptions",

@@ -3,7 +3,7 @@
 The candidates code generation offers (best first, see selfcall.candidates) are turned
 into module source with their entry guards and prologues, compiled through the code
 cache, and executed in the VM's namespace; each resulting code object's line map goes
-into LINE_MAPS so errors can be located.
+into LINE_MAPS so errors can be located and call stacks told.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from collections.abc import Callable
 from typing import Any
 
 from bvm.program import Instruction
-from bvm.translate.cache import LINE_MAPS
-from bvm.translate.codegen import Codegen, generate
+from bvm.translate.cache import LINE_MAPS, NO_OP, LineMap
+from bvm.translate.codegen import SHIFTED, Codegen, generate
 from bvm.translate.controlflow import NotStructured, discover
 from bvm.translate.host import TranslatorHost
 from bvm.translate.lattice import ANY, GUARD_CLASS
@@ -84,23 +84,30 @@ def _build(
     cache.make_room()
     fname, bname = f"_f{gen.key}_{cache.generation}", f"_b{gen.key}_{cache.generation}"
     source: list[str] = []
-    offsets = [first]  # line numbers start at 1; index 0 is unused
+    # Per generated line (numbers start at 1; index 0 is unused): the reference's error
+    # offset, and the instruction the line performs (NO_OP for the entry's own lines).
+    offsets = [first]
+    ops = [NO_OP]
 
     def define(head: str, prologue: list[str], deopt: bool) -> None:
         if gen.global_names:
             prologue = [f"global {', '.join(sorted(gen.global_names))}", *prologue]
         source.append(head)
         offsets.append(first)
+        ops.append(NO_OP)
         for text in prologue:
             source.append("    " + text)
             offsets.append(first)
+            ops.append(NO_OP)
         for indent, text, offset, flags in gen.lines:
             if deopt or not flags & DEOPT_ONLY:
                 source.append("    " * indent + text)
-                offsets.append(offset)
+                offsets.append(gen.prev_addr(offset) if flags & SHIFTED else offset)
+                ops.append(offset)
         if not gen.lines:
             source.append("    return None")
             offsets.append(first)
+            ops.append(first)
 
     twice = False
     if gen.toplevel:
@@ -127,16 +134,17 @@ def _build(
         if twice:
             define(f"def {bname}(_C{params}):", unpack, True)
     text = "\n".join(source) + "\n"
-    code = cache.compiled(text, offsets, f"<buzz:{gen.program.path}@{addr}:{gen.key}")
+    code = cache.compiled(text, (*offsets, *ops), f"<buzz:{gen.program.path}@{addr}:{gen.key}")
     namespace = vm.namespace()
     for key, value in gen.consts.items():
         namespace.setdefault(key, value)
     local: dict[str, Any] = {}
     exec(code, namespace, local)
     f: Callable[..., Any] = local[fname]
-    LINE_MAPS[f.__code__] = offsets
+    line_map = LineMap(first, gen.toplevel, offsets, ops)
+    LINE_MAPS[f.__code__] = line_map
     if sc is not None:
         body = local[bname] if twice else f
-        LINE_MAPS[body.__code__] = offsets
+        LINE_MAPS[body.__code__] = line_map
         namespace[sc.name] = body
     return f

@@ -16,9 +16,29 @@ from types import CodeType
 
 from bvm.translate.controlflow import NotStructured
 
-#: Generated code object -> list mapping each generated line number to a bytecode offset.
+#: A line map's instruction for the lines a generated function runs before its body (its
+#: `def`, entry guard and prologue): no instruction of its own.
+NO_OP = -1
+
+
+class LineMap:
+    """Where the lines of one generated function are in the bytecode: for each line number,
+    the reference's error offset (`offsets`) and the instruction the line performs (`ops`,
+    NO_OP before the body); `addr` is the function's entry, `toplevel` set for the
+    global code."""
+
+    __slots__ = ("addr", "toplevel", "offsets", "ops")
+
+    def __init__(self, addr: int, toplevel: bool, offsets: list[int], ops: list[int]) -> None:
+        self.addr = addr
+        self.toplevel = toplevel
+        self.offsets = offsets
+        self.ops = ops
+
+
+#: Generated code object -> its LineMap (errors are located by the traceback's line numbers).
 #: Weak, so the maps go with the translations (a node that reloads scripts doesn't grow).
-LINE_MAPS: weakref.WeakKeyDictionary[CodeType, list[int]] = weakref.WeakKeyDictionary()
+LINE_MAPS: weakref.WeakKeyDictionary[CodeType, LineMap] = weakref.WeakKeyDictionary()
 
 # Generations are numbered across every cache, so that no two caches (nor one cache
 # before and after a clear) name two functions alike; see CodeCache.generation.
@@ -43,9 +63,10 @@ class CodeCache:
             self._code.clear()
             self.generation = next(_generations)
 
-    def compiled(self, text: str, offsets: list[int], name: str) -> CodeType:
-        """The code object of generated module source `text`, compiled once."""
-        key = (text, tuple(offsets))
+    def compiled(self, text: str, offsets: tuple[int, ...], name: str) -> CodeType:
+        """The code object of generated module source `text` (whose line map is `offsets`),
+        compiled once."""
+        key = (text, offsets)
         code = self._code.get(key)
         if code is not None:
             return code

@@ -9,7 +9,8 @@ bare Python operations plus the int32 wrap or the binary32 rounding, and unknown
 take an inline int/int path and call bvm/ops.py for everything else. Loop iterations are
 counted for the budget by a `for` over one chunk's counts.
 
-Every generated line carries the bytecode offset an error on it is attributed to.
+Every generated line carries the offset of the instruction it performs, which locates an
+error raised there (the reference's offset differs for `tget`/`tput`: see `SHIFTED`).
 """
 
 from __future__ import annotations
@@ -57,6 +58,10 @@ if TYPE_CHECKING:
 MAX_NESTING = 80  # CPython's tokenizer allows 100 indentation levels
 MAX_LOOPS = 18  # and 20 statically nested loops
 MAX_PASSES = 8  # loop re-emissions while inferring types
+
+#: A line's flag: the reference reports its errors at the instruction before the line's
+#: own (`tget`/`tput` move `oldpc` only on success, docs/bytecode.md#step-loop).
+SHIFTED = 2
 
 #: Where a call sits: (instruction index, region end, enclosing loop, entries the region
 #: leaves on the stack), so a self-call can emit the rest of its region twice.
@@ -818,12 +823,14 @@ class Codegen:
         t = self.temp()
         kv, tc = self.val(k), self.val(tab)
         tests = ([] if tab.ty == TABLE else [f"{tc}.__class__ is _Table"]) + self.key_test(k)
-        # Attributed to the previous instruction when it fails (reference oldpc rule).
-        at = self.prev_addr(ins)
+        # The reference attributes a failure to the previous instruction (SHIFTED).
+        at = ins.addr
         if tests:
-            self.emit(f"{t} = {tc}[{kv}] if {' and '.join(tests)} else _tget({tc}, {kv})", at)
+            self.emit(
+                f"{t} = {tc}[{kv}] if {' and '.join(tests)} else _tget({tc}, {kv})", at, SHIFTED
+            )
         else:
-            self.emit(f"{t} = {tc}[{kv}]", at)
+            self.emit(f"{t} = {tc}[{kv}]", at, SHIFTED)
         origin = None
         if tab.origin.__class__ is Table and k.ty in (STR, INT):
             origin = tab.origin.get(k.const)
@@ -833,19 +840,19 @@ class Codegen:
         """A table write, inline for plain values; deletions and closures take the full rule."""
         v, k, tab = self.pop(), self.pop(), self.pop()
         kv, vv, tc = self.val(k), self.val(v), self.val(tab)
-        at = self.prev_addr(ins)
+        at = ins.addr  # the reference's offset is the previous instruction's (SHIFTED)
         vt = self.vtype(v)
         if vt in (NIL, CLOSURE):  # deletion, or a closure to re-bind: the full rule
-            self.emit(f"_tput({tc}, {kv}, {vv})", at)
+            self.emit(f"_tput({tc}, {kv}, {vv})", at, SHIFTED)
             return
         tests = ([] if tab.ty == TABLE else [f"{tc}.__class__ is _Table"]) + self.key_test(k)
         if vt == ANY:
             tests.append(f"{vv} is not None and {vv}.__class__ is not _Closure")
         if tests:
-            self.emit(f"if {' and '.join(tests)}: {tc}[{kv}] = {vv}", at)
-            self.emit(f"else: _tput({tc}, {kv}, {vv})", at)
+            self.emit(f"if {' and '.join(tests)}: {tc}[{kv}] = {vv}", at, SHIFTED)
+            self.emit(f"else: _tput({tc}, {kv}, {vv})", at, SHIFTED)
         else:
-            self.emit(f"{tc}[{kv}] = {vv}", at)
+            self.emit(f"{tc}[{kv}] = {vv}", at, SHIFTED)
 
     def call(self, ins: Instruction, context: RegionContext | None) -> None:
         """A call; `context` is the (index, region end, loop, leaves) of region() around it."""
@@ -958,10 +965,11 @@ class Codegen:
         self.ranges[k] = v.rng if v.ty == INT else None
         self.used_locals.add(k)
 
-    def prev_addr(self, ins: Instruction) -> int:
-        """The address of the instruction before `ins` (where tget/tput errors point)."""
-        i = self.index[ins.addr]
-        return self.instrs[i - 1].addr if i > 0 else ins.addr
+    def prev_addr(self, addr: int) -> int:
+        """The address of the instruction before the one at `addr` (where the reference
+        reports tget/tput errors)."""
+        i = self.index[addr]
+        return self.instrs[i - 1].addr if i > 0 else addr
 
     def entry_name(self, addr: int, size: int) -> str:
         """Bind the entry of the function at `addr` for `size` captured slots."""

@@ -13,6 +13,7 @@ from typing import IO, Annotated, Any
 import typer
 
 import bvm
+from bvm import srcmap
 from bvm.errors import (
     BuzzAsmError,
     BuzzBudgetExceeded,
@@ -45,17 +46,21 @@ def compile_cmd(
     out: Annotated[Path | None, typer.Option("-o", "--output", help="Output .bo path.")] = None,
     asm: Annotated[bool, typer.Option("--asm", help="Also write the .basm assembly.")] = False,
 ) -> None:
-    """Compile SCRIPT.bzz to .bo bytecode and .bdb debug info (beside it by default)."""
+    """Compile SCRIPT.bzz to .bo bytecode, .bdb debug info and the .bpos source map
+    (beside it by default)."""
     dirs = [str(d) for d in include or []]
     try:
-        basm = bvm.compile_to_asm(_read_source(script), str(script), dirs)
-        program = bvm.assemble(basm, str(script))
+        source = _read_source(script)
+        program = bvm.compile_source(source, str(script), dirs)
+        basm = bvm.compile_to_asm(source, str(script), dirs) if asm else ""
     except (BuzzCompileError, BuzzAsmError) as e:
         raise fail(e) from None
     bo, bdb, basm_path = _outputs(script, out)
     try:
         _write(bo, program.bytecode)
         _write(bdb, program.debug)
+        if program.srcmap is not None:  # exact error positions (docs/bytecode.md#bpos-layout)
+            _write(bo.with_suffix(".bpos"), srcmap.encode(program.srcmap, program.bytecode))
         if asm:
             basm_path.write_text(basm, encoding="latin-1")
     except OSError as e:
@@ -300,10 +305,9 @@ def _uses_robot_api(program: bvm.Program, globals_: dict[str, Any]) -> bool:
 
 def _where(e: BaseException, program: bvm.Program) -> str | None:
     """`file:line:col` of the Buzz code `e` was raised in, if it was raised in a script."""
-    from bvm.vm import _locate  # the VM's own attribution of an exception to its bytecode
+    from bvm.vm import raised_at
 
-    offset = _locate(e)
-    location = program.location(offset) if offset is not None else None
+    location = raised_at(e, program)
     if location is None:
         return None
     file, line, col = location

@@ -1,7 +1,8 @@
 """The command line's one way to report an error, and its exit-code rule.
 
 Every command exits 0 on success; 1 on a failure, after one line on stderr that begins
-`error:` (for Buzz source errors `error: FILE:LINE:COL: message`, a hint may follow); 2 when
+`error:` (for Buzz source errors `error: FILE:LINE:COL: message`, 1-based column; a hint or,
+for a runtime error, the Buzz call stack may follow on the next lines); 2 when
 the command line does not parse (an unknown option, a missing argument, `--seconds abc`).
 Nothing a user can type ends in a Python traceback: `FieldkitGroup` turns usage errors into
 the same `error:` line and unexpected exceptions into an `error:` line naming them. It also
