@@ -15,6 +15,7 @@ import bvm
 from bvm.errors import BuzzCompileError
 from fieldkit import resources
 from fieldkit.cli.errors import fail, usage_error
+from fieldkit.cli.options import parse_sets
 from fieldkit.cli.output import out_dir, write_json
 
 if TYPE_CHECKING:
@@ -66,6 +67,14 @@ def node_cmd(
     seed: Annotated[
         int, typer.Option("--seed", help="Seed of the script's random draws (with the robot id).")
     ] = 0,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            metavar="NAME=VALUE",
+            help="Set a script global before init() (repeatable), e.g. --set SHAPE=Y.",
+        ),
+    ] = None,
 ) -> None:
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
     from fieldkit.node.autopilot_port import MavlinkAutopilot
@@ -87,6 +96,7 @@ def node_cmd(
         commands = [RcCommand.parse(c, robot=rid) for c in command or []]
     except ConfigError as e:
         raise usage_error(str(e)) from None
+    globals_ = parse_sets(set_)
     script = resources.find_script(script)
     try:
         if script.suffix == ".bo":
@@ -129,6 +139,7 @@ def node_cmd(
         commands=commands,
         out=say,
         seed=seed,
+        globals_=globals_,
     )
     try:
         node.run(seconds)
