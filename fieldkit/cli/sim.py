@@ -63,7 +63,7 @@ def run_cmd(
             "--home",
             metavar="LAT,LON",
             help="Where the field is: the start grid's corner, the scripts' GPS origin "
-            f"[default: {DEFAULT_HOME[0]},{DEFAULT_HOME[1]}].",
+            f"(default {DEFAULT_HOME[0]},{DEFAULT_HOME[1]}).",
             show_default=False,
         ),
     ] = None,
@@ -72,8 +72,8 @@ def run_cmd(
         typer.Option(
             "--spacing",
             metavar="M",
-            help="Metres between neighbouring start positions on the grid [default: 3, "
-            "wider for swarms too big to all hear each other at 3 m: see docs/cli.md].",
+            help="Metres between neighbouring start positions on the grid (default 3, "
+            "wider for swarms too big to all hear each other at 3 m: see docs/cli.md).",
             show_default=False,
         ),
     ] = None,

@@ -43,7 +43,7 @@ def sitl_cmd(
             "--home",
             metavar="LAT,LON",
             help="Where the vehicles start: the start grid's corner "
-            f"[default: {DEFAULT_HOME[0]},{DEFAULT_HOME[1]}].",
+            f"(default {DEFAULT_HOME[0]},{DEFAULT_HOME[1]}).",
             show_default=False,
         ),
     ] = None,
