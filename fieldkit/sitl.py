@@ -17,6 +17,13 @@ all get it at once: nodes wait for a fix before their loop starts, so the swarm 
 together however long each process took to start.
 
 Real time, real processes: runs are not reproducible bit for bit (that is the simulator's job).
+
+Outputs in `out/`: `summary.json`; `log.txt`, every node's output in time order, each line
+`[2026-11-26T09:03:24.123Z] robot 4: text` (UTC wall time; a line the node did not stamp
+itself is stamped when the relay reads it), and the same lines of one robot in
+`robotN/log.txt` beside its node's `summary.json`; `trajectories.csv` and `plot.png`
+(`fieldkit.sim.tracks`: every robot's position and flight mode once a second from the
+swarm's start, and the bytes each put on the air).
 """
 
 from __future__ import annotations
@@ -25,20 +32,23 @@ import json
 import math
 import os
 import random
+import re
 import subprocess
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 from fieldkit.radio.xbee import FrameReader, TransmitRequest, receive_packet
 from fieldkit.results import write_json
 from fieldkit.robot import geo
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
+from fieldkit.sim.tracks import SAMPLE_S, Tracks, write_tracks
 from fieldkit.vehicle.pty import PtyPair, open_pty
 from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME
 from fieldkit.vehicle.sim.vehicle import SimVehicle
@@ -55,6 +65,52 @@ STARTUP_S = 120.0
 #: After the nodes' run, how long they have to write their summaries, seconds.
 WIND_DOWN_S = 30.0
 
+#: A line a node stamped itself: `[UTC time] robot ID: ` (fieldkit node's stdout).
+_STAMPED = re.compile(r"\[\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?Z\] robot \d+: ")
+
+
+def wall_stamp(t: float) -> str:
+    """UTC wall time `t` (seconds since the epoch) as a log stamp: 2026-11-26T09:03:24.123Z."""
+    d = datetime.fromtimestamp(t, tz=UTC)
+    return d.strftime("%Y-%m-%dT%H:%M:%S.") + f"{d.microsecond // 1000:03d}Z"
+
+
+class NodeOutput:
+    """What one node process prints (stdout and stderr, one pipe), cut into stamped lines."""
+
+    def __init__(self, robot: int, fd: int) -> None:
+        self.robot = robot
+        self.fd = fd
+        os.set_blocking(fd, False)
+        self.lines: list[str] = []  # every line so far, stamped
+        self._partial = b""
+        self.closed = False
+
+    def read(self) -> None:
+        """Take whatever the node printed since the last call (never blocks)."""
+        while not self.closed:
+            try:
+                data = os.read(self.fd, 65536)
+            except BlockingIOError:
+                return
+            except OSError:
+                data = b""
+            if not data:  # the node is gone: its last line, even without its newline
+                self.closed = True
+                data, self._partial = self._partial + b"\n", b""
+                if data == b"\n":
+                    return
+            *complete, self._partial = (self._partial + data).split(b"\n")
+            now = wall_stamp(time.time())
+            tag = f"[{self.robot}] "  # the script API's robot tag: the stamp names the robot
+            for raw in complete:
+                text = raw.decode("utf-8", errors="replace").rstrip("\r")
+                if not _STAMPED.match(text):
+                    if text.startswith(tag):
+                        text = text[len(tag) :]
+                    text = f"[{now}] robot {self.robot}: {text}"
+                self.lines.append(text)
+
 
 @dataclass
 class SitlRobot:
@@ -68,7 +124,7 @@ class SitlRobot:
     out: Path
     process: subprocess.Popen[bytes] | None = None
     bytes_sent: int = 0
-    log: IO[bytes] | None = None
+    output: NodeOutput | None = None
 
 
 class RadioRelay:
@@ -145,6 +201,7 @@ class SitlConfig:
     include_dirs: Sequence[str] = ()
     spacing_m: float = 4.0
     home: tuple[float, float] = DEFAULT_HOME
+    sets: Mapping[str, int | float | str] = field(default_factory=dict)  # node --set
     extra: list[str] = field(default_factory=list)  # more `fieldkit node` arguments
 
 
@@ -204,19 +261,24 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
                 *(a for d in cfg.include_dirs for a in ("-I", d)),
                 *cfg.extra,
             ]
+            for name, value in cfg.sets.items():
+                argv += ["--set", f"{name}={value}"]  # the node parses it back the same
             for c in cfg.commands:
                 if c.robot == r.id:
                     # Each node gets its own robot's commands, in the one T:ROBOT:CODE form.
                     argv += ["--command", c.text()]
-            r.log = (r.out / "log.txt").open("wb")
-            r.process = subprocess.Popen(argv, stdout=r.log, stderr=subprocess.STDOUT)
+            r.process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+            assert r.process.stdout is not None
+            r.output = NodeOutput(r.id, r.process.stdout.fileno())
         processes = [r.process for r in robots if r.process is not None]
         start = time.monotonic()
         last = start
         released: float | None = None
         deadline = start + STARTUP_S
+        tracker = _Tracker(cfg, robots)
         while any(p.poll() is None for p in processes):
             now = time.monotonic()
+            _read_outputs(robots)
             if released is None and all(r.vehicle.bytes_received > 0 for r in robots):
                 # Every node is up and has spoken to its autopilot: all get their GPS fix
                 # now, so their loops, and their --seconds, start together however long
@@ -234,43 +296,114 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
                 r.vehicle.step(now - last)
             last = now
             relay.service()
-            if progress is not None and released is not None:
-                progress(min(now - released, cfg.seconds), cfg.seconds)
+            if released is not None:
+                tracker.sample(now - released)
+                if progress is not None:
+                    progress(min(now - released, cfg.seconds), cfg.seconds)
             time.sleep(STEP_S)
     finally:
         for r in robots:
             if r.process is not None and r.process.poll() is None:
                 r.process.kill()
                 r.process.wait()
-            if r.log is not None:
-                r.log.close()
+            if r.process is not None and r.process.stdout is not None:
+                _read_outputs([r])  # what it printed last, up to the end of its pipe
+                r.process.stdout.close()
             r.vehicle.close()
             r.autopilot_pty.close()
             r.radio_pty.close()
+    _write_logs(cfg, robots)
+    write_tracks(tracker.tracks, cfg.out, f"sitl {cfg.script.name}, {cfg.robots} robots")
     return _summary(cfg, robots, relay)
+
+
+def _read_outputs(robots: Sequence[SitlRobot]) -> None:
+    for r in robots:
+        if r.output is not None:
+            r.output.read()
+
+
+def _write_logs(cfg: SitlConfig, robots: Sequence[SitlRobot]) -> None:
+    """Each robot's lines to robotN/log.txt, and everyone's, in time order, to log.txt."""
+    merged: list[str] = []
+    for r in robots:
+        lines = r.output.lines if r.output is not None else []
+        (r.out / "log.txt").write_text("".join(line + "\n" for line in lines), encoding="utf-8")
+        merged.extend(lines)
+    # The stamps are ISO 8601 UTC of one width: text order is time order (a stable sort
+    # keeps each node's own order among equal stamps).
+    merged.sort(key=lambda line: line[: line.index("]") + 1])
+    (cfg.out / "log.txt").write_text("".join(line + "\n" for line in merged), encoding="utf-8")
+
+
+class _Tracker:
+    """Samples every vehicle once a second from the swarm's start: position (in the frame of
+    the run's home), flight mode, and the bytes each robot sent since the last sample."""
+
+    def __init__(self, cfg: SitlConfig, robots: Sequence[SitlRobot]) -> None:
+        self.robots = robots
+        self.frame = geo.LocalFrame(cfg.home[0], cfg.home[1], 0.0)
+        self.tracks = Tracks(
+            ids=[r.id for r in robots], home=cfg.home, state_column="mode", load_unit="second"
+        )
+        self.next_t = 0.0
+        self.last_t = 0.0
+        self.last_bytes = [0] * len(robots)
+
+    def sample(self, t: float) -> None:
+        """Sample if a second has passed since the last sample (t: seconds since the start)."""
+        if t < self.next_t:
+            return
+        positions, modes = [], []
+        for r in self.robots:
+            v = r.vehicle
+            lat, lon, alt = v.position
+            east, north, _ = self.frame.from_gps(lat, lon)
+            positions.append((east, north, alt))
+            modes.append(v.mode if v.armed else "DISARMED")
+        t = round(t, 3)  # wall time: to the millisecond is all it means
+        self.tracks.add(t, positions, modes)
+        sent = [r.bytes_sent for r in self.robots]
+        if t > self.last_t:
+            rates = [
+                (b - a) / (t - self.last_t) for a, b in zip(self.last_bytes, sent, strict=True)
+            ]
+            self.tracks.add_load(t, sum(rates) / len(rates), max(rates))
+        self.last_t, self.last_bytes = t, sent
+        self.next_t = (math.floor(t / SAMPLE_S) + 1) * SAMPLE_S
 
 
 def _summary(cfg: SitlConfig, robots: list[SitlRobot], relay: RadioRelay) -> dict:
     states: dict[str, object] = {}
     errors: list[dict[str, object]] = []
     nodes: dict[str, object] = {}
+    not_finished: list[int] = []
+    in_failsafe: list[int] = []
     for r in robots:
         path = r.out / "summary.json"
         node: dict[str, Any] = {}
-        if path.exists():
+        try:
             node = json.loads(path.read_text(encoding="utf-8"))
-        else:
-            tail = (r.out / "log.txt").read_text(encoding="utf-8", errors="replace")[-2000:]
+        except (OSError, ValueError):
+            lines = r.output.lines if r.output is not None else []
+            tail = "\n".join(lines[-20:])[-2000:]
             errors.append({"robot": r.id, "error": f"node did not finish: {tail.strip()}"})
+            not_finished.append(r.id)
         states[str(r.id)] = node.get("final_state")
         for e in node.get("errors", []):
             errors.append({"robot": r.id, "error": e})
+        if node.get("errors"):  # the node's errors are its script's: it ended in its failsafe
+            in_failsafe.append(r.id)
         nodes[str(r.id)] = node
     summary = {
         "robots": cfg.robots,
         "seconds": cfg.seconds,
         "drop": cfg.drop,
+        "home": list(cfg.home),
+        "globals": dict(cfg.sets),
         "final_states": states,
+        "not_finished": not_finished,
+        "in_failsafe": in_failsafe,
         "bytes_sent_per_robot": {str(r.id): r.bytes_sent for r in robots},
         "relay": dict(relay.stats),
         "errors": errors,

@@ -3,9 +3,12 @@ XBee frames through a relay that drops and corrupts them."""
 
 from __future__ import annotations
 
+import csv
 import json
+import re
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from fieldkit.cli import app
@@ -61,3 +64,81 @@ def test_sitl_command_line_errors(tmp_path: Path) -> None:
         app, ["sitl", "--robots", "2", "--script", "nope.bzz", "--out", str(tmp_path)]
     )
     assert missing.exit_code == 1 and "no such file" in missing.output
+    for args, status in ((["--home", "x"], 2), (["--set", "=1"], 2), (["--home", "0,200"], 1)):
+        bad = runner.invoke(
+            app,
+            [
+                "sitl",
+                "--robots",
+                "2",
+                "--script",
+                "task_allocation.bzz",
+                "--out",
+                str(tmp_path),
+                *args,
+            ],
+        )
+        assert bad.exit_code == status and "error: --" in bad.stderr, bad.output
+
+
+#: Both nodes log X at init; robot 2's script fails at its second step.
+FAILING = """
+function init() { log(X)  BVMSTATE = "UP" }
+T = 0
+function step() {
+  T = T + 1
+  if (id == 2 and T == 2) { var z = 1 / 0 }
+}
+"""
+
+STAMP = re.compile(r"\[\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z\] robot (\d): ")
+
+
+def test_sitl_says_where_logs_in_time_order_and_fails_on_a_script_error(tmp_path: Path) -> None:
+    script = tmp_path / "failing.bzz"
+    script.write_text(FAILING)
+    out = tmp_path / "run"
+    result = CliRunner().invoke(
+        app,
+        [
+            "sitl",
+            "--robots",
+            "2",
+            "--script",
+            str(script),
+            "--seconds",
+            "2",
+            "--out",
+            str(out),
+            "--set",
+            "X=hello",
+            "--home",
+            "10.5,20.25",
+        ],
+    )
+    # A node whose script error left its robot in the failsafe fails the run, and says so.
+    assert result.exit_code == 1, result.output
+    (error,) = [ln for ln in result.stderr.splitlines() if ln.startswith("error:")]
+    assert error.startswith("error: robot 2 ended in its failsafe after a script error: robot 2:")
+    assert "failing.bzz:6:" in error and "division by zero" in error
+    for name in ("summary.json", "log.txt", "trajectories.csv", "plot.png"):
+        assert f"wrote {out / name}" in result.stderr
+    (line,) = result.stdout.splitlines()
+    assert line.startswith("sitl: 2 robots; 2 s; final states UP 2; 1 error; bytes sent per robot")
+    assert line.endswith(f"results in {out}")
+    # One merged log, in time order, every line stamped with the wall time and the robot.
+    lines = (out / "log.txt").read_text().splitlines()
+    assert all(STAMP.match(ln) for ln in lines), lines
+    assert [ln[:26] for ln in lines] == sorted(ln[:26] for ln in lines)
+    for rid in ("1", "2"):  # --set reached every node before init()
+        assert any(re.search(rf"robot {rid}: (\[{rid}\] )?hello$", ln) for ln in lines)
+    own = (out / "robot1" / "log.txt").read_text().splitlines()
+    assert own and all(STAMP.match(ln).group(1) == "1" for ln in own)  # type: ignore[union-attr]
+    with (out / "trajectories.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == ["t_s", "robot", "east_m", "north_m", "alt_m", "lat", "lon", "mode"]
+    assert [(r["t_s"], r["robot"]) for r in rows[:2]] == [("0.0", "1"), ("0.0", "2")]
+    assert float(rows[0]["lat"]) == pytest.approx(10.5) and rows[0]["mode"] == "DISARMED"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["in_failsafe"] == [2] and summary["not_finished"] == []
+    assert summary["globals"] == {"X": "hello"} and summary["home"] == [10.5, 20.25]

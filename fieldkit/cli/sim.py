@@ -10,7 +10,9 @@ import typer
 from bvm.errors import BuzzCompileError
 from fieldkit import resources
 from fieldkit.cli.errors import fail, usage_error
-from fieldkit.cli.output import out_dir, progress_bar, write_json, wrote
+from fieldkit.cli.options import parse_home, parse_sets
+from fieldkit.cli.output import count_states, out_dir, progress_bar, write_json, wrote
+from fieldkit.robot.geo import DEFAULT_HOME
 
 if TYPE_CHECKING:
     from contextlib import AbstractContextManager
@@ -28,7 +30,12 @@ app = typer.Typer(
 def run_cmd(
     script: Annotated[Path, typer.Argument(help="The behavior, a .bzz file.")],
     robots: Annotated[int, typer.Option("--robots", help="Number of robots (ids 1..N).")],
-    out: Annotated[Path, typer.Option("--out", help="Directory for summary.json and logs.")],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out", help="Directory for summary.json, log.txt, trajectories.csv, plot.png."
+        ),
+    ],
     include: Annotated[
         list[Path] | None, typer.Option("-I", "--include", help="Extra include directory.")
     ] = None,
@@ -50,14 +57,50 @@ def run_cmd(
         ),
     ] = None,
     profile: Annotated[str, typer.Option("--profile", help="Device profile.")] = "solo",
+    home: Annotated[
+        str | None,
+        typer.Option(
+            "--home",
+            metavar="LAT,LON",
+            help="Where the field is: the start grid's corner, the scripts' GPS origin "
+            f"(default {DEFAULT_HOME[0]},{DEFAULT_HOME[1]}).",
+            show_default=False,
+        ),
+    ] = None,
+    spacing: Annotated[
+        float | None,
+        typer.Option(
+            "--spacing",
+            metavar="M",
+            help="Metres between neighbouring start positions on the grid (default 3, "
+            "wider for swarms too big to all hear each other at 3 m: see docs/cli.md).",
+            show_default=False,
+        ),
+    ] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            metavar="NAME=VALUE",
+            help="Set a script global before init() (repeatable), e.g. --set SHAPE=Y.",
+        ),
+    ] = None,
 ) -> None:
-    """Run SCRIPT on N simulated robots and write OUT/summary.json."""
-    from fieldkit.sim.simulator import ConfigError, RcCommand, SimConfig, Simulation
+    """Run SCRIPT on N simulated robots: OUT/summary.json, log.txt, trajectories.csv, plot.png."""
+    from fieldkit.sim.simulator import (
+        ConfigError,
+        RcCommand,
+        SimConfig,
+        Simulation,
+        default_spacing,
+    )
 
     try:  # a --command that does not parse is a command-line error (exit 2)
         commands = [RcCommand.parse(c) for c in command or []]
     except ConfigError as e:
         raise usage_error(str(e)) from None
+    globals_ = parse_sets(set_)
+    lat, lon = DEFAULT_HOME if home is None else parse_home(home)
     try:
         config = SimConfig(
             script=resources.find_script(script),
@@ -71,25 +114,61 @@ def run_cmd(
             commands=commands,
             profile=profile,
             include_dirs=[str(d) for d in include or []],
+            spacing_m=default_spacing(robots, range_m) if spacing is None else spacing,
+            origin=(lat, lon, 0.0),
+            globals=dict(globals_),
         )
         sim = Simulation(config)
     except (ConfigError, BuzzCompileError) as e:
         raise fail(e) from None
     out_dir(out)
+    from fieldkit.sim.tracks import SimRecorder, write_tracks
+
+    recorder = SimRecorder(sim)
     with progress_bar(f"simulating {robots} robots", round(seconds * 10)) as advance:
-        sim.run(progress=advance)
+        sim.run(progress=advance, after_step=recorder.after_step)
     summary = sim.summary()
+    summary["home"] = [lat, lon]
+    summary["spacing_m"] = config.spacing_m
+    summary["globals"] = globals_
     write_json(out / "summary.json", summary)
+    log_path = out / "log.txt"
     try:
-        with (out / "log.txt").open("w", encoding="utf-8") as f:
-            for robot in sim.robots.values():
-                for line in robot.log:
-                    f.write(line + "\n")
+        with log_path.open("w", encoding="utf-8") as f:
+            for line in sim.log:
+                f.write(line + "\n")
+        written = write_tracks(recorder.tracks, out, f"sim run {script.name}, {robots} robots")
     except OSError as e:
-        raise fail(f"{out / 'log.txt'}: cannot write: {e.strerror or e}") from None
-    wrote(out / "log.txt")
-    for err in cast(list[dict[str, object]], summary["errors"]):
-        typer.echo(f"robot {err['robot']}: {err['error']}", err=True)
+        raise fail(f"{e.filename or out}: cannot write: {e.strerror or e}") from None
+    for path in (log_path, *written):
+        wrote(path)
+    errors = cast(list[dict[str, object]], summary["errors"])
+    for err in errors:
+        typer.echo(f"robot {err['robot']} at {err['t_s']} s: {err['error']}", err=True)
+    typer.echo(_run_line(summary, out))
+    failed = cast(list[int], summary["in_failsafe"])
+    if failed:  # a robot left in its failsafe fails the run (a recovered error does not)
+        first = next(e for e in errors if e["robot"] in failed)
+        who = (
+            f"robot {failed[0]} ended in its failsafe"
+            if len(failed) == 1
+            else f"robots {', '.join(map(str, failed))} ended in their failsafe"
+        )
+        raise fail(f"{who} after a script error: robot {first['robot']}: {first['error']}")
+
+
+def _run_line(summary: dict[str, object], out: Path) -> str:
+    """`sim run`'s last line: what ran, how it ended, and where the results are."""
+    states = cast(dict[str, str | None], summary["final_states"])
+    errors = cast(list[object], summary["errors"])
+    figures = [
+        f"{summary['robots']} robots",
+        f"{summary['seconds_simulated']:g} s simulated",
+        f"final states {count_states(states.values())}",
+        f"{len(errors)} script error{'s' if len(errors) != 1 else ''}",
+        f"bundles max {summary['max_bundle_bytes']} B, mean {summary['mean_bundle_bytes']} B",
+    ]
+    return f"sim run: {'; '.join(figures)}; results in {out}"
 
 
 # ------------------------------------------------------------------ experiments

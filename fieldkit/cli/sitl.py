@@ -3,19 +3,27 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
 from fieldkit import resources
 from fieldkit.cli.errors import fail, usage_error
-from fieldkit.cli.output import out_dir, progress_bar, wrote
+from fieldkit.cli.options import parse_home, parse_sets
+from fieldkit.cli.output import count_states, out_dir, progress_bar, wrote
+from fieldkit.robot.geo import DEFAULT_HOME
 
 
 def sitl_cmd(
     robots: Annotated[int, typer.Option("--robots", help="Number of robots (ids 1..N).")],
     script: Annotated[Path, typer.Option("--script", help="The behavior, a .bzz file.")],
-    out: Annotated[Path, typer.Option("--out", help="Directory for summary.json and logs.")],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            help="Directory for summary.json, log.txt, trajectories.csv, plot.png, robotN/.",
+        ),
+    ],
     profile: Annotated[str, typer.Option("--profile", help="Device profile.")] = "solo",
     drop: Annotated[float, typer.Option("--drop", help="Radio frame loss, 0..1.")] = 0.0,
     seconds: Annotated[float, typer.Option("--seconds", help="Seconds to run.")] = 60.0,
@@ -29,6 +37,24 @@ def sitl_cmd(
     seed: Annotated[
         int, typer.Option("--seed", help="Seed of the radio's drops and of the nodes' scripts.")
     ] = 0,
+    home: Annotated[
+        str | None,
+        typer.Option(
+            "--home",
+            metavar="LAT,LON",
+            help="Where the vehicles start: the start grid's corner "
+            f"(default {DEFAULT_HOME[0]},{DEFAULT_HOME[1]}).",
+            show_default=False,
+        ),
+    ] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            metavar="NAME=VALUE",
+            help="Set a script global before init() on every node (repeatable).",
+        ),
+    ] = None,
 ) -> None:
     """Run SCRIPT on N real nodes against simulated autopilots, over a simulated radio."""
     import bvm
@@ -44,6 +70,8 @@ def sitl_cmd(
             commands.append(RcCommand.parse(text))
         except ConfigError as e:
             raise usage_error(str(e)) from None
+    sets = parse_sets(set_)
+    home_ll = DEFAULT_HOME if home is None else parse_home(home)
     for text, c in zip(command or [], commands, strict=True):
         if not 1 <= c.robot <= robots:
             raise fail(f"--command {text!r}: robots are 1..{robots}")
@@ -79,16 +107,54 @@ def sitl_cmd(
         seed=seed,
         commands=commands,
         include_dirs=dirs,
+        home=home_ll,
+        sets=sets,
     )
     with progress_bar(f"SITL: {robots} robots", round(seconds)) as advance:
-        summary = run(cfg, progress=lambda done, total: advance(round(done), round(total)))
-    states = summary["final_states"]
-    typer.echo(f"{robots} robots, {seconds:g} s: final states {states}")
-    sent = summary["bytes_sent_per_robot"]
-    typer.echo(f"bytes sent per robot: {sent}")
+        try:
+            summary = run(cfg, progress=lambda done, total: advance(round(done), round(total)))
+        except OSError as e:  # no pty, no process, a result that cannot be written
+            raise fail(e) from None
+    for name in ("summary.json", "log.txt", "trajectories.csv", "plot.png"):
+        wrote(out / name)
     for err in summary["errors"]:
         typer.echo(f"robot {err['robot']}: {err['error']}", err=True)
-    wrote(out / "summary.json")
-    missing = [rid for rid, state in states.items() if state is None]
-    if missing:  # a node that did not run to the end fails the run (issue 13's honest exit)
-        raise fail(f"robots {', '.join(missing)} did not run to the end: see {out}/robotN/log.txt")
+    typer.echo(_sitl_line(summary, out))
+    # An honest exit (issue 13): a node that did not run to the end, or whose script error
+    # left its robot in the failsafe, fails the run.
+    problems = []
+    missing = summary["not_finished"]
+    if missing:
+        problems.append(f"{_robots(missing)} did not run to the end (see {out}/robotN/log.txt)")
+    failed = summary["in_failsafe"]
+    if failed:
+        first = next(e for e in summary["errors"] if e["robot"] in failed)
+        verb = "its" if len(failed) == 1 else "their"
+        problems.append(
+            f"{_robots(failed)} ended in {verb} failsafe after a script error: "
+            f"robot {first['robot']}: {first['error']}"
+        )
+    if problems:
+        raise fail("; ".join(problems))
+
+
+def _robots(ids: list[int]) -> str:
+    """`robot 3` or `robots 3, 5`."""
+    return f"robot {ids[0]}" if len(ids) == 1 else f"robots {', '.join(map(str, ids))}"
+
+
+def _sitl_line(summary: dict[str, Any], out: Path) -> str:
+    """`sitl`'s last line: what ran, how it ended, the radio, and where the results are."""
+    sent = list(summary["bytes_sent_per_robot"].values())
+    relay = summary["relay"]
+    errors = len(summary["errors"])
+    figures = [
+        f"{summary['robots']} robots",
+        f"{summary['seconds']:g} s",
+        f"final states {count_states(summary['final_states'].values())}",
+        f"{errors} error{'s' if errors != 1 else ''}",
+        f"bytes sent per robot: mean {sum(sent) / max(1, len(sent)):.0f}, "
+        f"max {max(sent, default=0)}",
+        f"relay {relay.get('frames', 0)} frames, {relay.get('dropped', 0)} dropped",
+    ]
+    return f"sitl: {'; '.join(figures)}; results in {out}"

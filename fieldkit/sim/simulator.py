@@ -10,8 +10,11 @@ the orders (actuators), and the clock is the tick count. For speed, the neighbou
 whole swarm are computed in one pass before the robots step.
 
 A script error stops that robot's script and puts its vehicle in the safe state (hover, or
-stop for a ground robot); the error is kept with its `file:line:col`; the rest of the swarm
-goes on, and the robot keeps broadcasting its position, as a field node does.
+stop for a ground robot); the error is kept with its `file:line:col` and simulated time; the
+rest of the swarm goes on, and the robot keeps broadcasting its position, as a field node does.
+
+What the scripts log is kept in one list, `Simulation.log`, in time order (tick, then robot
+id: the order the robots step in), each line `[  12.300 s] robot 4: text` (`log_line`).
 """
 
 from __future__ import annotations
@@ -49,6 +52,30 @@ RTL_ALT_M = 15.0
 #: Where the simulated field is (any point works; scripts see GPS around it).
 DEFAULT_ORIGIN = (*geo.DEFAULT_HOME, 0.0)
 
+#: The start grid's pitch, metres, of SimConfig (and so of the experiments).
+SPACING_M = 3.0
+
+
+#: On its default start grid (`default_spacing`), a robot is in radio range of about this
+#: many others at most: the experiments' scale (up to 50 robots, all in range).
+CROWD = 64
+
+
+def default_spacing(robots: int, range_m: float) -> float:
+    """The start grid's pitch `sim run` uses unless told: SPACING_M (3 m), or, if more than
+    CROWD robots would then be in range of one another, the pitch at which each has about
+    CROWD in range (a thousand robots all in range of each other cost a million receptions,
+    a million neighbour entries and as many swarm lists every tick: a run crawls)."""
+    in_range = math.pi * range_m**2 / SPACING_M**2  # robots within range on an endless grid
+    if robots - 1 <= CROWD or in_range <= CROWD or not math.isfinite(range_m):
+        return SPACING_M
+    return round(range_m * math.sqrt(math.pi / CROWD), 1)
+
+
+def log_line(t: float, robot: int, text: str) -> str:
+    """One line of a log: simulated time (fixed width, ms) and robot id before the text."""
+    return f"[{t:9.3f} s] robot {robot}: {text}"
+
 
 @contextlib.contextmanager
 def tuned_collector() -> Iterator[None]:
@@ -83,7 +110,7 @@ class SimConfig:
     commands: Sequence[RcCommand] = ()
     profile: str = "solo"
     include_dirs: Sequence[str] = ()
-    spacing_m: float = 3.0  # initial grid spacing on the ground
+    spacing_m: float = SPACING_M  # the start grid's pitch on the ground
     origin: tuple[float, float, float] = DEFAULT_ORIGIN
     globals: dict[str, object] = field(default_factory=dict)  # set before the global code
     max_ticks_per_step: int = 1_000_000  # a runaway loop in a script stops that robot
@@ -101,6 +128,8 @@ class SimConfig:
             raise ConfigError(f"--latency must be at least 1 tick, got {self.latency}")
         if not self.range_m > 0:
             raise ConfigError(f"--range must be > 0 metres, got {self.range_m}")
+        if not 0 < self.spacing_m <= 1e5:
+            raise ConfigError(f"--spacing must be > 0 metres, got {self.spacing_m}")
         if not 0 < self.seconds <= 1e6:
             raise ConfigError(f"--seconds must be > 0, got {self.seconds}")
         last = self.first_id + self.robots - 1
@@ -116,13 +145,12 @@ class SimConfig:
 class SimRobot:
     """One simulated robot: its runtime (script, supervisor, heard table) and its vehicle."""
 
-    __slots__ = ("id", "runtime", "vehicle", "log", "home", "sensors")
+    __slots__ = ("id", "runtime", "vehicle", "home", "sensors")
 
-    def __init__(self, rid: int, runtime: RobotRuntime, vehicle: Vehicle, log: list[str]) -> None:
+    def __init__(self, rid: int, runtime: RobotRuntime, vehicle: Vehicle) -> None:
         self.id = rid
         self.runtime = runtime
         self.vehicle = vehicle
-        self.log = log  # what its script logged
         self.home = (vehicle.x, vehicle.y)
         self.sensors = Sensors(lat=0.0, lon=0.0, alt=0.0, north=0.0, east=0.0)  # this tick's
 
@@ -141,11 +169,18 @@ class SimRobot:
         """The script's BVMSTATE after its last step."""
         return self.runtime.state
 
+    @property
+    def in_failsafe(self) -> bool:
+        """Whether a script error stopped the script and nothing restarted it: the robot is
+        in its failsafe. (An error a restart recovered leaves `error` set, this False.)"""
+        return self.runtime.error is not None and not self.runtime.running
+
 
 class Simulation:
     """A seeded, tick-driven swarm simulation of one script on N robots."""
 
     def __init__(self, config: SimConfig, *, on_log: Callable[[str], None] | None = None) -> None:
+        """`on_log`, if given, sees every log line as it is made (see `log_line`)."""
         config.validate()
         self.config = config
         try:
@@ -159,6 +194,10 @@ class Simulation:
         self.radio = RadioModel(self._link_model(config), seed=config.seed)
         self.tick = 0
         self.on_log = on_log
+        self.log: list[str] = []  # every robot's log lines, in time order
+        # Script errors as they happened: robot, simulated time, the error.
+        self.errors: list[dict[str, object]] = []
+        self._failed: set[int] = set()  # robots whose error is in `errors`
         self.max_bundle = 0
         self.total_bundle = 0
         self.bundles = 0
@@ -176,20 +215,20 @@ class Simulation:
             x = (k % side) * config.spacing_m + rng.uniform(-0.2, 0.2)
             y = (k // side) * config.spacing_m + rng.uniform(-0.2, 0.2)
             vehicle = Vehicle.from_profile(self.profile, x=x, y=y)
-            log: list[str] = []
             runtime = RobotRuntime(
                 rid,
                 self.profile,
                 self.frame,
                 seed=config.seed,
-                log_sink=self._sink(log),
+                log_sink=self._sink(rid),
                 max_ticks=config.max_ticks_per_step,
             )
-            robot = SimRobot(rid, runtime, vehicle, log)
+            robot = SimRobot(rid, runtime, vehicle)
             self.robots[rid] = robot
             self._hear[rid] = runtime.hear
             self._heard[rid] = runtime.heard
-            runtime.start(self.program, self._sensors(robot), config.globals)
+            if not runtime.start(self.program, self._sensors(robot), config.globals):
+                self._note_error(robot)
 
     @staticmethod
     def _link_model(config: SimConfig) -> LinkModel:
@@ -202,13 +241,27 @@ class Simulation:
         except ValueError as e:
             raise ConfigError(f"--drop {config.drop} with --burst {config.burst}: {e}") from None
 
-    def _sink(self, log: list[str]) -> Callable[[str], None]:
+    def _sink(self, rid: int) -> Callable[[str], None]:
+        """Robot `rid`'s log: one list for the swarm, each line stamped when it is made."""
+
+        prefix = f"[{rid}] "  # the script API's own robot tag: the line names the robot
+
         def sink(text: str) -> None:
-            log.append(text)
+            if text.startswith(prefix):
+                text = text[len(prefix) :]
+            line = log_line(self.tick * TICK_S, rid, text)
+            self.log.append(line)
             if self.on_log is not None:
-                self.on_log(text)
+                self.on_log(line)
 
         return sink
+
+    def _note_error(self, robot: SimRobot) -> None:
+        """Keep a robot's new script error, with when it happened, and log it."""
+        self._failed.add(robot.id)
+        error = robot.error
+        self.errors.append({"robot": robot.id, "t_s": round(self.tick * TICK_S, 6), "error": error})
+        self._sink(robot.id)(f"script error, robot to its safe state: {error}")
 
     # ------------------------------------------------------------ one tick
 
@@ -266,6 +319,8 @@ class Simulation:
             # 2.-5. sensors, step, radio out, actuators: the robot's own tick
             runtime = robot.runtime
             out = runtime.tick(self._sensors(robot), rcs.get(robot.id), neighbors.get(robot.id))
+            if runtime.error is not None and robot.id not in self._failed:
+                self._note_error(robot)
             self._send(robot, out.bundle, out.messages)
             if out.order is not None:
                 self._actuate(robot, out.order)
@@ -320,14 +375,25 @@ class Simulation:
 
     # ------------------------------------------------------------ running
 
-    def run(self, progress: Callable[[int, int], None] | None = None) -> None:
-        """Run the configured number of simulated seconds."""
+    def run(
+        self,
+        progress: Callable[[int, int], None] | None = None,
+        after_step: Callable[[], None] | None = None,
+    ) -> None:
+        """Run the configured number of simulated seconds; `after_step()` (a recorder) and
+        `progress(ticks_done, ticks_total)` are called after every tick."""
         total = round(self.config.seconds / TICK_S)
         with tuned_collector():
             while self.tick < total:
                 self.step()
+                if after_step is not None:
+                    after_step()
                 if progress is not None:
                     progress(self.tick, total)
+
+    def in_failsafe(self) -> list[int]:
+        """The robots a script error left in their failsafe (stopped, not restarted), by id."""
+        return [r.id for r in self.robots.values() if r.in_failsafe]
 
     def summary(self) -> dict[str, object]:
         """The run's figures, as `summary.json` holds them."""
@@ -339,7 +405,10 @@ class Simulation:
             "max_bundle_bytes": self.max_bundle,
             "mean_bundle_bytes": round(self.total_bundle / self.bundles, 3) if self.bundles else 0,
             "final_states": {str(r.id): r.state for r in self.robots.values()},
-            "errors": [{"robot": r.id, "error": r.error} for r in self.robots.values() if r.error],
+            # Every script error, in time order; those not recovered left their robot in
+            # its failsafe, listed in `in_failsafe`.
+            "errors": list(self.errors),
+            "in_failsafe": self.in_failsafe(),
         }
 
 
@@ -350,5 +419,9 @@ __all__ = [
     "Simulation",
     "TICK_S",
     "ON_GROUND",
+    "SPACING_M",
+    "CROWD",
+    "default_spacing",
+    "log_line",
     "tuned_collector",
 ]

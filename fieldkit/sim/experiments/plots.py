@@ -1,4 +1,5 @@
-"""An experiment's figures: plot.png (the paper's figure) and bytes.png (the radio load)."""
+"""fieldkit's figures: an experiment's plot.png (the paper's figure) and bytes.png (the radio
+load), and the tracks of a `sim run` or `sitl` run (`plot_tracks`)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from fieldkit.sim.experiments.plan import Plan
+    from fieldkit.sim.tracks import Tracks
 
 
 def _label(plan: Plan, spec: RunSpec) -> str:
@@ -155,3 +157,78 @@ def plot_bytes(plan: Plan, results: Sequence[RunResult], path: Path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="upper right")
     _save(fig, path)
+
+
+#: Tracks of swarms larger than this are drawn as points only (lines would be a smear).
+_TRACK_LINES_MAX = 200
+
+
+def plot_tracks(tracks: Tracks, path: Path, title: str) -> None:
+    """A run's plot.png: every robot's track, coloured by its state (or flight mode) at each
+    sample, with a ring where it started; below, the radio load over time."""
+    fig, axes = _figure(2, 1, (8.0, 10.0))
+    ax, load = axes[0][0], axes[1][0]
+    samples = tracks.samples
+    if len(tracks.ids) <= _TRACK_LINES_MAX:
+        for k in range(len(tracks.ids)):
+            ax.plot(
+                [s.east[k] for s in samples],
+                [s.north[k] for s in samples],
+                color="grey",
+                lw=0.6,
+                alpha=0.5,
+                zorder=1,
+            )
+    if samples:
+        ax.scatter(
+            samples[0].east,
+            samples[0].north,
+            s=30,
+            facecolors="none",
+            edgecolors="black",
+            lw=0.6,
+            zorder=3,
+            label="start",
+        )
+    names = sorted({str(state) for s in samples for state in s.states})
+    colours = _state_colours(names)
+    size = 12 if len(tracks.ids) <= _TRACK_LINES_MAX else 3
+    for name in names:
+        east = [
+            e for s in samples for e, st in zip(s.east, s.states, strict=True) if str(st) == name
+        ]
+        north = [
+            n for s in samples for n, st in zip(s.north, s.states, strict=True) if str(st) == name
+        ]
+        label = name if name != "None" else f"no {tracks.state_column}"
+        ax.scatter(east, north, s=size, color=colours[name], zorder=2, label=label)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("east of home (m)")
+    ax.set_ylabel("north of home (m)")
+    what = "state" if tracks.state_column == "state" else "flight mode"
+    ax.set_title(f"{title}: tracks by {what}, one point a second", fontsize=10)
+    ax.grid(alpha=0.3)
+    if names:
+        ax.legend(fontsize=7, loc="best", ncol=2 if len(names) > 8 else 1)
+    times = [s.t_s for s in tracks.load]
+    load.plot(times, [s.mean for s in tracks.load], label="mean over robots")
+    load.plot(times, [s.max for s in tracks.load], ls=":", label="max")
+    if tracks.load_unit == "step":
+        load.axhline(XBEE_FRAME_BYTES, color="red", ls="--", lw=1, label="XBee frame (250 B)")
+    load.set_xlabel("time (s)")
+    load.set_ylabel(f"bytes on the air per robot per {tracks.load_unit}")
+    load.set_title("radio load", fontsize=10)
+    load.set_ylim(bottom=0)
+    load.grid(alpha=0.3)
+    load.legend(fontsize=7, loc="upper right")
+    _save(fig, path)
+
+
+def _state_colours(names: list[str]) -> dict[str, Any]:
+    """A distinct colour per state name (tab10, then tab20 for more), grey for none."""
+    import matplotlib
+
+    cmap = matplotlib.colormaps["tab10" if len(names) <= 10 else "tab20"]
+    return {
+        name: "lightgrey" if name == "None" else cmap(k % cmap.N) for k, name in enumerate(names)
+    }
