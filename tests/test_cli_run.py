@@ -51,8 +51,10 @@ def test_init_and_destroy_are_called_only_if_defined(tmp_path: Path, robot_api: 
     args = ["run", str(script), "--steps", "2"] + (["--robot-api"] if robot_api else [])
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
-    prefix = "[1] " if robot_api else ""
-    assert result.stdout == f"{prefix}step 1\n{prefix}step 2\n"
+    if robot_api:  # the simulator's log: simulated time and robot id on every line
+        assert result.stdout == "[    0.000 s] robot 1: step 1\n[    0.100 s] robot 1: step 2\n"
+    else:
+        assert result.stdout == "step 1\nstep 2\n"
 
 
 def test_a_missing_step_is_still_an_error(tmp_path: Path) -> None:
@@ -76,11 +78,11 @@ def test_robot_api_is_one_simulated_robot_at_the_default_home(tmp_path: Path) ->
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     init, flying, at = result.stdout.splitlines()
-    assert init == "[7] init 7 status 1"  # on the ground at the start
-    m = re.fullmatch(r"\[7\] status 2 alt (\S+)", flying)  # then in the air (IN_AIR)
+    assert init == "[    0.000 s] robot 7: init 7 status 1"  # on the ground at the start
+    m = re.fullmatch(r"\[ *[\d.]+ s\] robot 7: status 2 alt (\S+)", flying)  # then IN_AIR
     assert m is not None, flying
     assert float(m.group(1)) == pytest.approx(5.0, abs=0.5)
-    lat, lon = (float(v) for v in at.removeprefix("[7] at ").split(","))
+    lat, lon = (float(v) for v in at.split("robot 7: at ")[1].split(","))
     assert (lat, lon) == pytest.approx(geo.DEFAULT_HOME, abs=1e-4)
 
 
@@ -178,7 +180,7 @@ def test_log_is_one_format_in_run_the_simulator_and_the_node(tmp_path: Path) -> 
     bare = runner.invoke(app, ["run", str(script)])
     assert bare.stdout == "a1 b[nil]2.500000\n"
     simulated = runner.invoke(app, ["run", str(script), "--robot-api"])
-    assert simulated.stdout == "[1] a1 b[nil]2.500000\n"
+    assert simulated.stdout == "[    0.000 s] robot 1: a1 b[nil]2.500000\n"
     # The node's host is the same runtime the simulator steps, with its own sink.
     lines: list[str] = []
     node = RobotRuntime(
