@@ -127,6 +127,18 @@ def test_gps_fix_wait_times_out_then_succeeds(make_rig: Callable[..., SimRig]) -
     assert t.home == pytest.approx((HOME[0], HOME[1], 50.0), abs=1e-6)
 
 
+def test_a_node_waits_for_a_position_after_the_fix(make_rig: Callable[..., SimRig]) -> None:
+    """A fix can come before any GLOBAL_POSITION_INT: the node used to take home as 0,0."""
+    rig = make_rig(gps_fix_delay_s=0.0)
+    rig.link.wait_heartbeat(5.0, idle=rig.tick, poll_interval=0.0)
+    with pytest.raises(AutopilotError, match=r"GPS fix but no position .* after 1 s"):
+        rig.link.wait_position(1.0, idle=rig.tick, poll_interval=0.0)  # no streams asked yet
+    rig.link.request_streams(10.0)
+    rig.link.wait_gps_fix(5.0, idle=rig.tick, poll_interval=0.0)
+    t = rig.link.wait_position(5.0, idle=rig.tick, poll_interval=0.0)
+    assert t.lat == pytest.approx(HOME[0], abs=1e-7) and t.lon == pytest.approx(HOME[1], abs=1e-7)
+
+
 def test_stream_rates_follow_requests(make_rig: Callable[..., SimRig]) -> None:
     rig = make_rig()
     rig.link.wait_heartbeat(5.0, idle=rig.tick, poll_interval=0.0)

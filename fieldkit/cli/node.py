@@ -239,11 +239,12 @@ def _run(
                 link.request_streams(prof.node.loop_rate_hz)
                 fix_s = prof.autopilot.gps_fix_timeout_s
                 say(f"autopilot: waiting up to {fix_s:g} s for a GPS fix")
-                t = link.wait_gps_fix(fix_s)
+                link.wait_gps_fix(fix_s)
+                t = link.wait_position(fix_s)
             except AutopilotError as e:
                 raise fail(e) from None
-            home = t.home if t.home is not None else (t.lat or 0.0, t.lon or 0.0, 0.0)
-            home = (home[0], home[1], 0.0)
+            assert t.lat is not None and t.lon is not None  # what wait_position waited for
+            home = (t.home[0], t.home[1], 0.0) if t.home is not None else (t.lat, t.lon, 0.0)
             until = "until stopped" if seconds is None else f"for {seconds:g} s"
             say(f"starting {script} at {prof.node.loop_rate_hz:g} Hz {until}, home "
                 f"{home[0]:.7f},{home[1]:.7f}")  # fmt: skip

@@ -204,6 +204,21 @@ class Autopilot(AutopilotCore):
             raise AutopilotError(f"no GPS fix after {timeout:g} s ({detail})")
         return self.telemetry
 
+    def wait_position(
+        self,
+        timeout: float,
+        *,
+        idle: Callable[[], None] | None = None,
+        poll_interval: float = 0.05,
+    ) -> AutopilotState:
+        """Poll until the autopilot has sent a position (GLOBAL_POSITION_INT): a fix can
+        come first, and a node must not take 0,0 for its home; AutopilotError on timeout."""
+        if not self._wait(lambda: self.telemetry.lat is not None, timeout, idle, poll_interval):
+            raise AutopilotError(
+                f"GPS fix but no position (GLOBAL_POSITION_INT) after {timeout:g} s"
+            )
+        return self.telemetry
+
     def wait_command(
         self,
         command: MavCommand,
