@@ -38,7 +38,9 @@ class BuzzCompileError(BvmError):
         self.hint = hint
 
     def __str__(self) -> str:
-        text = f"{self.path}:{self.line}:{self.col}: {self.message}"
+        # Line 0: about the file as a whole (it cannot be read), not a place in it.
+        where = f"{self.path}:{self.line}:{self.col}" if self.line > 0 else self.path
+        text = f"{where}: {self.message}"
         if self.hint:
             text += f"\n  hint: {self.hint}"
         return text

@@ -161,6 +161,9 @@ def test_set_chooses_the_task_allocation_shape(tmp_path: Path) -> None:
         (["--set", "1X=2"], 2, "--set '1X=2'"),
         (["--spacing", "abc"], 2, "'--spacing'"),
         (["--spacing", "0"], 1, "--spacing must be > 0"),
+        (["--burst", "nan"], 1, "--burst must be a mean of at least 1 tick"),
+        (["--burst", "0.5"], 1, "--burst must be a mean of at least 1 tick"),
+        (["--range", "inf"], 1, "--range must be > 0"),
     ],
 )
 def test_bad_home_set_and_spacing(tmp_path: Path, args: list[str], status: int, words: str) -> None:

@@ -124,9 +124,11 @@ class SimConfig:
             raise ConfigError(f"--robots must be between 1 and 65534, got {self.robots}")
         if not 0.0 <= self.drop <= 1.0:
             raise ConfigError(f"--drop must be a probability in [0, 1], got {self.drop}")
+        if self.burst is not None and not 1.0 <= self.burst < math.inf:
+            raise ConfigError(f"--burst must be a mean of at least 1 tick, got {self.burst}")
         if self.latency < 1:
             raise ConfigError(f"--latency must be at least 1 tick, got {self.latency}")
-        if not self.range_m > 0:
+        if not 0 < self.range_m < math.inf:
             raise ConfigError(f"--range must be > 0 metres, got {self.range_m}")
         if not 0 < self.spacing_m <= 1e5:
             raise ConfigError(f"--spacing must be > 0 metres, got {self.spacing_m}")
