@@ -235,7 +235,7 @@ def test_every_help_prints_as_written(path: tuple[str, ...]) -> None:
 def test_the_command_option_help_keeps_its_colons() -> None:
     text = runner.invoke(app, ["sim", "run", "--help"]).stdout
     assert "T:ROBOT:CODE[:P...]" in text
-    assert "--include <path>" in text and "--command <str>" in text
+    assert "--include <path>" in text and "--command T:ROBOT:CODE[:P...]" in text
 
 
 def test_version_comes_from_the_package_metadata() -> None:

@@ -18,8 +18,14 @@ import typer
 import bvm
 from bvm.errors import BuzzCompileError
 from fieldkit import resources
-from fieldkit.cli.errors import error_text, fail, usage_error
-from fieldkit.cli.options import SetValue, parse_sets
+from fieldkit.cli.errors import error_text, fail
+from fieldkit.cli.options import (
+    CommandOption,
+    SetOption,
+    SetValue,
+    parse_commands,
+    parse_sets,
+)
 from fieldkit.cli.output import out_dir, write_json
 
 if TYPE_CHECKING:
@@ -120,23 +126,8 @@ def node_cmd(
     include: Annotated[
         list[Path] | None, typer.Option("-I", "--include", help="Extra include directory.")
     ] = None,
-    command: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--command",
-            help="T:ROBOT:CODE[:P...]: a remote-control code at second T; ROBOT must be "
-            "this robot's id (22 takeoff, 21 land, 900 task allocation, 901 coverage, "
-            "16 waypoint).",
-        ),
-    ] = None,
-    sets: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--set",
-            help="NAME=VALUE: set script global NAME before init() (repeatable; an int, "
-            "else a float, else a string).",
-        ),
-    ] = None,
+    command: CommandOption = None,
+    sets: SetOption = None,
     connect_timeout: Annotated[
         float, typer.Option("--connect-timeout", help="Seconds to wait for the autopilot.")
     ] = 30.0,
@@ -145,16 +136,11 @@ def node_cmd(
     ] = 0,
 ) -> None:
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
-    from fieldkit.errors import ConfigError
     from fieldkit.node.log import NodeLog
     from fieldkit.robot.profiles import ProfileError, load_profile
-    from fieldkit.robot.rc import RcCommand
 
     # Everything that can be checked without a device is, before any port is opened.
-    try:
-        commands = [RcCommand.parse(c) for c in command or []]
-    except ConfigError as e:
-        raise usage_error(str(e)) from None
+    commands = parse_commands(command)  # ROBOT is checked against this node's id below
     globals_ = parse_sets(sets)
     if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
         raise fail(f"--seconds must be > 0, got {seconds:g}")

@@ -1,15 +1,57 @@
-"""Option values several commands share: `--set NAME=VALUE` and `--home LAT,LON`.
+"""Options several commands share: `--command`, `--set NAME=VALUE` and `--home LAT,LON`.
 
-A value that does not parse is a command-line error (exit 2, `error:` first), the same on
-`sim run`, `sitl` and `node`.
+Each is declared once (`CommandOption`, `SetOption`, `HomeOption`) and parsed once. A value
+that does not parse is a command-line error (exit 2, `error:` first), the same on `sim run`,
+`sitl`, `node` and `vehicle-sim`.
 """
 
 from __future__ import annotations
 
 import math
 import re
+from typing import TYPE_CHECKING, Annotated
+
+import typer
 
 from fieldkit.cli.errors import fail, usage_error
+from fieldkit.robot.geo import DEFAULT_HOME
+
+if TYPE_CHECKING:
+    from fieldkit.robot.rc import RcCommand
+
+#: `--command T:ROBOT:CODE[:P...]` (repeatable).
+CommandOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--command",
+        metavar="T:ROBOT:CODE[:P...]",
+        help="Hand robot ROBOT a remote-control code at second T (repeatable): 22 takeoff, "
+        "21 land, 20 home, 900 task allocation, 901 coverage, 16 waypoint (P: ID:LAT:LON:ALT).",
+    ),
+]
+
+#: `--set NAME=VALUE` (repeatable).
+SetOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--set",
+        metavar="NAME=VALUE",
+        help="Set script global NAME before init() (repeatable; VALUE an int, else a float, "
+        "else a string), e.g. --set SHAPE=Y.",
+    ),
+]
+
+#: `--home LAT,LON`.
+HomeOption = Annotated[
+    str | None,
+    typer.Option(
+        "--home",
+        metavar="LAT,LON",
+        help="Where the robots start, in degrees "
+        f"(default {DEFAULT_HOME[0]},{DEFAULT_HOME[1]}, Montreal).",
+        show_default=False,
+    ),
+]
 
 #: A Buzz identifier: what `--set` may name.
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
@@ -46,8 +88,22 @@ def parse_sets(texts: list[str] | None) -> dict[str, SetValue]:
     return out
 
 
-def parse_home(text: str) -> tuple[float, float]:
-    """`--home LAT,LON` in degrees: not two numbers is exit 2, not a place on Earth exit 1."""
+def parse_commands(texts: list[str] | None) -> list[RcCommand]:
+    """`--command` options as remote-control commands (a form that does not parse: exit 2)."""
+    from fieldkit.errors import ConfigError
+    from fieldkit.robot.rc import RcCommand
+
+    try:
+        return [RcCommand.parse(text) for text in texts or []]
+    except ConfigError as e:
+        raise usage_error(str(e)) from None
+
+
+def parse_home(text: str | None) -> tuple[float, float]:
+    """`--home LAT,LON` in degrees (None: the default home): not two numbers is exit 2, not a
+    place on Earth exit 1."""
+    if text is None:
+        return DEFAULT_HOME
     parts = text.split(",")
     try:
         if len(parts) != 2:
@@ -64,4 +120,13 @@ def parse_home(text: str) -> tuple[float, float]:
     return lat, lon
 
 
-__all__ = ["SetValue", "parse_home", "parse_sets", "set_value"]
+__all__ = [
+    "CommandOption",
+    "HomeOption",
+    "SetOption",
+    "SetValue",
+    "parse_commands",
+    "parse_home",
+    "parse_sets",
+    "set_value",
+]

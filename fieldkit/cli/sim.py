@@ -9,10 +9,16 @@ import typer
 
 from bvm.errors import BuzzCompileError
 from fieldkit import resources
-from fieldkit.cli.errors import fail, usage_error
-from fieldkit.cli.options import parse_home, parse_sets
+from fieldkit.cli.errors import fail
+from fieldkit.cli.options import (
+    CommandOption,
+    HomeOption,
+    SetOption,
+    parse_commands,
+    parse_home,
+    parse_sets,
+)
 from fieldkit.cli.output import count_states, out_dir, progress_bar, write_json, wrote
-from fieldkit.robot.geo import DEFAULT_HOME
 
 if TYPE_CHECKING:
     from contextlib import AbstractContextManager
@@ -48,25 +54,9 @@ def run_cmd(
     range_m: Annotated[float, typer.Option("--range", help="Radio range in metres.")] = 500.0,
     seconds: Annotated[float, typer.Option("--seconds", help="Simulated seconds.")] = 60.0,
     seed: Annotated[int, typer.Option("--seed", help="Seed of every random draw.")] = 0,
-    command: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--command",
-            help="T:ROBOT:CODE[:P...] hands a remote-control code to a robot at second T "
-            "(22 takeoff, 21 land, 900 task allocation, 901 coverage, 16 waypoint).",
-        ),
-    ] = None,
+    command: CommandOption = None,
     profile: Annotated[str, typer.Option("--profile", help="Device profile.")] = "solo",
-    home: Annotated[
-        str | None,
-        typer.Option(
-            "--home",
-            metavar="LAT,LON",
-            help="Where the field is: the start grid's corner, the scripts' GPS origin "
-            f"(default {DEFAULT_HOME[0]},{DEFAULT_HOME[1]}).",
-            show_default=False,
-        ),
-    ] = None,
+    home: HomeOption = None,
     spacing: Annotated[
         float | None,
         typer.Option(
@@ -77,30 +67,19 @@ def run_cmd(
             show_default=False,
         ),
     ] = None,
-    set_: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--set",
-            metavar="NAME=VALUE",
-            help="Set a script global before init() (repeatable), e.g. --set SHAPE=Y.",
-        ),
-    ] = None,
+    set_: SetOption = None,
 ) -> None:
     """Run SCRIPT on N simulated robots: OUT/summary.json, log.txt, trajectories.csv, plot.png."""
     from fieldkit.sim.simulator import (
         ConfigError,
-        RcCommand,
         SimConfig,
         Simulation,
         default_spacing,
     )
 
-    try:  # a --command that does not parse is a command-line error (exit 2)
-        commands = [RcCommand.parse(c) for c in command or []]
-    except ConfigError as e:
-        raise usage_error(str(e)) from None
+    commands = parse_commands(command)
     globals_ = parse_sets(set_)
-    lat, lon = DEFAULT_HOME if home is None else parse_home(home)
+    lat, lon = parse_home(home)
     try:
         config = SimConfig(
             script=resources.find_script(script),

@@ -8,10 +8,16 @@ from typing import Annotated, Any
 import typer
 
 from fieldkit import resources
-from fieldkit.cli.errors import fail, usage_error
-from fieldkit.cli.options import parse_home, parse_sets
+from fieldkit.cli.errors import fail
+from fieldkit.cli.options import (
+    CommandOption,
+    HomeOption,
+    SetOption,
+    parse_commands,
+    parse_home,
+    parse_sets,
+)
 from fieldkit.cli.output import count_states, out_dir, progress_bar, wrote
-from fieldkit.robot.geo import DEFAULT_HOME
 
 
 def sitl_cmd(
@@ -30,48 +36,22 @@ def sitl_cmd(
     include: Annotated[
         list[Path] | None, typer.Option("-I", "--include", help="Extra include directory.")
     ] = None,
-    command: Annotated[
-        list[str] | None,
-        typer.Option("--command", help="T:ROBOT:CODE[:P...]: a remote-control code at second T."),
-    ] = None,
+    command: CommandOption = None,
     seed: Annotated[
         int, typer.Option("--seed", help="Seed of the radio's drops and of the nodes' scripts.")
     ] = 0,
-    home: Annotated[
-        str | None,
-        typer.Option(
-            "--home",
-            metavar="LAT,LON",
-            help="Where the vehicles start: the start grid's corner "
-            f"(default {DEFAULT_HOME[0]},{DEFAULT_HOME[1]}).",
-            show_default=False,
-        ),
-    ] = None,
-    set_: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--set",
-            metavar="NAME=VALUE",
-            help="Set a script global before init() on every node (repeatable).",
-        ),
-    ] = None,
+    home: HomeOption = None,
+    set_: SetOption = None,
 ) -> None:
     """Run SCRIPT on N real nodes against simulated autopilots, over a simulated radio."""
     import bvm
     from bvm.errors import BuzzCompileError
-    from fieldkit.errors import ConfigError
     from fieldkit.robot.profiles import ProfileError, load_profile
-    from fieldkit.robot.rc import RcCommand
     from fieldkit.sitl import SitlConfig, run
 
-    commands = []
-    for text in command or []:  # first: a command line that does not parse is exit 2
-        try:
-            commands.append(RcCommand.parse(text))
-        except ConfigError as e:
-            raise usage_error(str(e)) from None
+    commands = parse_commands(command)  # first: a command line that does not parse is exit 2
     sets = parse_sets(set_)
-    home_ll = DEFAULT_HOME if home is None else parse_home(home)
+    home_ll = parse_home(home)
     for text, c in zip(command or [], commands, strict=True):
         if not 1 <= c.robot <= robots:
             raise fail(f"--command {text!r}: robots are 1..{robots}")

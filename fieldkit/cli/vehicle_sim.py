@@ -76,13 +76,10 @@ def vehicle_sim_cmd(
     """Run a simulated ArduPilot vehicle (Copter, or Rover for a ground profile)."""
     # Imported here: pymavlink is slow to import, and every fieldkit command loads this file.
     from fieldkit.vehicle.pty import open_pty
-    from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME, VehicleSimError
+    from fieldkit.vehicle.sim.ardupilot import VehicleSimError
     from fieldkit.vehicle.sim.vehicle import SimVehicle
 
-    if home is None:
-        home_ll = DEFAULT_HOME
-    else:
-        home_ll = parse_home(home)
+    home_ll = parse_home(home)
     try:
         prof = load_profile(profile)
     except (ProfileError, OSError) as e:
