@@ -163,13 +163,19 @@ def _serve(
     old_level = logger.level
     logger.setLevel(logging.INFO)
     stop = threading.Event()
-    old_term = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    # Ctrl-C and SIGTERM end the run alike. SIGINT gets a handler of its own: a process
+    # started in the background of a script inherits SIGINT ignored, and Python then
+    # raises no KeyboardInterrupt (a stress run of the suite hung on exactly that).
+    old = {
+        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
+    }
     try:
         sim.run(rate, stop)
     except KeyboardInterrupt:
         pass  # Ctrl-C is how this command is meant to end
     finally:
-        signal.signal(signal.SIGTERM, old_term)
+        for sig, previous in old.items():
+            signal.signal(sig, previous)
         logger.removeHandler(handler)
         logger.setLevel(old_level)
         sim.close()
