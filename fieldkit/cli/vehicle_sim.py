@@ -171,8 +171,6 @@ def _serve(
     }
     try:
         sim.run(rate, stop)
-    except KeyboardInterrupt:
-        pass  # Ctrl-C is how this command is meant to end
     finally:
         for sig, previous in old.items():
             signal.signal(sig, previous)
