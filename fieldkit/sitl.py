@@ -39,10 +39,10 @@ import time
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from fieldkit.node.log import wall_stamp
 from fieldkit.radio.xbee import FrameReader, TransmitRequest, receive_packet
 from fieldkit.results import write_json
 from fieldkit.robot import geo
@@ -67,12 +67,6 @@ WIND_DOWN_S = 30.0
 
 #: A line a node stamped itself: `[UTC time] robot ID: ` (fieldkit node's stdout).
 _STAMPED = re.compile(r"\[\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?Z\] robot \d+: ")
-
-
-def wall_stamp(t: float) -> str:
-    """UTC wall time `t` (seconds since the epoch) as a log stamp: 2026-11-26T09:03:24.123Z."""
-    d = datetime.fromtimestamp(t, tz=UTC)
-    return d.strftime("%Y-%m-%dT%H:%M:%S.") + f"{d.microsecond // 1000:03d}Z"
 
 
 class NodeOutput:
