@@ -53,6 +53,7 @@ class ScriptStatus(Enum):
 
     IDLE = "idle"
     RUNNING = "running"
+    STANDBY = "standby"  # loaded, not stepped: an update's barrier holds the robot
     FAILED = "failed"
 
 
@@ -132,6 +133,7 @@ class RobotRuntime:
         self.counters: Counter[str] = Counter()  # host-side: bundle_errors, own_echoes
         self.event_counts: Counter[str] = Counter()
         self.observer: Callable[[TickRecord], None] | None = None
+        self.globals: dict[str, object] = {}  # the operator's values, set again at a switch
         self.vm, self.api = self._new_vm()
 
     def _new_vm(self) -> tuple[bvm.VM, ScriptAPI]:
@@ -174,11 +176,17 @@ class RobotRuntime:
             self.vm, self.api = self._new_vm()
         self.status = ScriptStatus.RUNNING
         self.state = None
+        if self.error is not None:
+            self.supervisor.script_restarted()
+        self.error = None
+        self.supervisor.resume()
+        if globals_ is not None:
+            self.globals = dict(globals_)
         vm = self.vm
         try:
             vm.load(program)
             self.api.install()
-            given = dict(globals_ or {})
+            given = self.globals
             for name, value in given.items():
                 vm[name] = value
             self.api.before_step(sensors, [])
@@ -194,6 +202,19 @@ class RobotRuntime:
         except BuzzError as e:
             self.fail(e)
         return self.running
+
+    def stand_by(self, reason: str) -> None:
+        """Stop stepping the script (it stays loaded) and hold the robot still, until
+        `resume` or a `start` of another program; bundles with the position go on."""
+        if self.status is _RUNNING:
+            self.status = ScriptStatus.STANDBY
+            self.supervisor.stand_by(reason)
+
+    def resume(self) -> None:
+        """Step the script again after `stand_by`."""
+        if self.status is ScriptStatus.STANDBY:
+            self.status = _RUNNING
+            self.supervisor.resume()
 
     def destroy(self) -> None:
         """The robot is stopping: run the script's `destroy()`, if it has one and runs."""

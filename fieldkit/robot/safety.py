@@ -72,6 +72,8 @@ class Supervisor:
         self.queue: deque[Command] = deque()
         self.target: tuple[float, float, float] | None = None  # latched absolute goto
         self.failsafe: str | None = None  # the reason, once a failsafe fired
+        self.standing_by: str | None = None  # why the script is not obeyed for now (an update)
+        self._hold_sent = False
         self.action: FailsafeAction | None = None
         self._action_sent = False
         self.events: list[str] = []  # what the supervisor did and why, for the node's log
@@ -91,6 +93,29 @@ class Supervisor:
         """The commands the script queued this tick (ignored once a failsafe has fired)."""
         if self.failsafe is None:
             self.queue.extend(commands)
+
+    def stand_by(self, reason: str) -> None:
+        """Hold the vehicle still and obey no script command until `resume` (an update's
+        barrier): a UAV holds position, a ground robot stops. Failsafes and the pilot keep
+        their priority."""
+        self.standing_by = reason
+        self._hold_sent = False
+        self.queue.clear()
+        self.target = None
+        self.events.append(f"standby ({reason}): hold")
+
+    def resume(self) -> None:
+        """End a standby: the script's commands are obeyed again."""
+        if self.standing_by is not None:
+            self.standing_by = None
+            self.events.append("standby over: script resumed")
+
+    def script_restarted(self) -> None:
+        """A new program replaced the one that failed (an update or its rollback): a
+        script-error failsafe is lifted; any other failsafe stands."""
+        if self.failsafe is not None and self.failsafe.startswith("script error"):
+            self.failsafe = self.action = None
+            self.events.append("script restarted: failsafe lifted")
 
     def script_error(self, message: str) -> None:
         """The script failed: its robot goes to the profile's safe state."""
@@ -131,6 +156,12 @@ class Supervisor:
                     self.events.append("autopilot link recovered: script resumed")
                     self.failsafe = self.action = None
             return None
+        if self.standing_by is not None:
+            self.queue.clear()
+            if self._hold_sent:
+                return None
+            self._hold_sent = True
+            return Order("hold")
         self._now += 1
         while self.queue:
             c = self.queue.popleft()
