@@ -70,13 +70,13 @@ class AgentConfig:
     heartbeat_every: int = 10
     #: An entry whose heartbeat has not advanced for this long is not waited for.
     live_ticks: int = 600
-    #: A barrier not passed by then rolls the version back.
-    barrier_timeout_ticks: int = 1200
+    #: A barrier that sees no robot become ready for this long rolls the version back.
+    barrier_timeout_ticks: int = 600
     #: A script error this soon after a switch rolls the version back.
     grace_ticks: int = 100
     #: Ticks between WANTs of a robot pulling a patch, and between OFFERs of a holder.
-    want_every: int = 5
-    offer_every: int = 10
+    want_every: int = 3
+    offer_every: int = 5
     #: How long a verdict is repeated after it is learnt.
     verdict_ticks: int = 200
     #: Barrier entries passed on per STATUS at most.
@@ -224,6 +224,8 @@ class UpdateAgent:
         self.bytes_sent = 0
         self.now = 0
         self._busy_until = -1
+        self._progress_at = 0  # tick the barrier last saw a robot become ready
+        self._waiting = 1 << 30  # live robots not ready, at the last look
         self._last_status = -(10**9)
         self._last_want = -(10**9)
 
@@ -270,6 +272,11 @@ class UpdateAgent:
         if sender == self.id:
             self.counters["own_echoes"] += 1
             return
+        # Verdicts first: a STATUS in the same frame only says that a version is bad, the
+        # verdict says why.
+        for r in frame.records:
+            if isinstance(r, pk.Verdict):
+                self._learn_bad(r.version, r.reason, f"heard from robot {sender}")
         for r in frame.records:
             if isinstance(r, pk.Status):
                 self._on_status(sender, r)
@@ -283,8 +290,6 @@ class UpdateAgent:
                 self._on_want(r)
             elif isinstance(r, pk.Chunk):
                 self._on_chunk(r)
-            else:
-                self._learn_bad(r.version, r.reason, f"heard from robot {sender}")
 
     def _note(self, robot: int, heartbeat: int, phase: Phase, version: int) -> None:
         p = self.peers.get(robot)
@@ -443,10 +448,13 @@ class UpdateAgent:
                 action = self._resume(self.bad[self.target])
             elif self._agreed():
                 action = self._switch("the swarm agreed")
-            elif now - self.since > cfg.barrier_timeout_ticks:
+            elif now - self._progress_at > cfg.barrier_timeout_ticks:
                 seconds = cfg.barrier_timeout_ticks / 10
+                waiting = ", ".join(str(r) for r in self._not_ready()[:8])
                 self._learn_bad(
-                    self.target, Reason.BARRIER_TIMEOUT, f"no agreement in {seconds:g} s"
+                    self.target,
+                    Reason.BARRIER_TIMEOUT,
+                    f"no robot became ready for {seconds:g} s (waiting for robots {waiting})",
                 )
                 action = self._resume(self.bad[self.target])
         elif phase is Phase.GRACE and now - self.since > cfg.grace_ticks:
@@ -465,24 +473,36 @@ class UpdateAgent:
 
     def _enter(self, phase: Phase, target: int) -> None:
         self.phase, self.target, self.since = phase, target, self.now
+        self._progress_at, self._waiting = self.now, 1 << 30
         self.heartbeat = (self.heartbeat + 1) & 0xFFFF  # the news travels as a newer entry
 
-    def _live(self) -> list[_Peer]:
+    def live(self) -> dict[int, _Peer]:
+        """The robots heard recently (a heartbeat newer than `live_ticks`), by id: those a
+        barrier waits for (ground stations excluded)."""
         horizon = self.now - self.config.live_ticks
-        return [
-            p
-            for p in self.peers.values()
+        return {
+            rid: p
+            for rid, p in self.peers.items()
             if p.fresh_at >= horizon and p.phase is not Phase.OPERATOR
-        ]
+        }
+
+    def _not_ready(self) -> list[int]:
+        """The live robots not (yet) standing by for, or running, the target version."""
+        return [rid for rid, p in self.live().items() if p.version != self.target]
 
     def _agreed(self) -> bool:
-        """The barrier: every live robot stands by for, or runs, the target version."""
-        target = self.target
-        return all(p.version == target for p in self._live()) or self._someone_runs(target)
+        """The barrier: every live robot stands by for, or runs, the target version. A
+        robot more ready than before restarts the timeout: a big swarm is slow, not stuck."""
+        waiting = len(self._not_ready())
+        if waiting < self._waiting:
+            self._progress_at = self.now
+        self._waiting = waiting
+        return waiting == 0 or self._someone_runs(self.target)
 
     def _someone_runs(self, version: int) -> bool:
         return any(
-            p.version == version and p.phase in (Phase.RUNNING, Phase.GRACE) for p in self._live()
+            p.version == version and p.phase in (Phase.RUNNING, Phase.GRACE)
+            for p in self.live().values()
         )
 
     def _switch(self, reason: str) -> Switch:
@@ -602,22 +622,22 @@ class UpdateAgent:
 
     def _needed(self, t: _Transfer) -> bool:
         """Whether a live neighbour runs an older version than `t` (it may need it)."""
-        return any(p.version < t.version for p in self._live())
+        return any(p.version < t.version for p in self.live().values())
 
     def _entries(self, add: Callable[[pk.Record, int], bool], room: int) -> None:
         n = min(self.config.entries_per_frame, (room - 3) // pk.ENTRY_BYTES)
         if n <= 0:
             return
-        live = self._live()
         # What changed since we last passed it on first, then the longest unsent.
-        live.sort(key=lambda p: (p.sent_at > p.changed_at, p.sent_at))
-        ids = {id(p): rid for rid, p in self.peers.items()}
+        live = sorted(
+            self.live().items(), key=lambda kv: (kv[1].sent_at > kv[1].changed_at, kv[1].sent_at)
+        )
         chosen = live[:n]
         if not chosen:
             return
-        entries = tuple(pk.Entry(ids[id(p)], p.heartbeat, p.phase, p.version) for p in chosen)
+        entries = tuple(pk.Entry(rid, p.heartbeat, p.phase, p.version) for rid, p in chosen)
         if add(pk.Entries(entries), pk.entries_bytes(len(entries))):
-            for p in chosen:
+            for _, p in chosen:
                 p.sent_at = self.now
 
 
