@@ -1,4 +1,5 @@
-"""Options several commands share: `--command`, `--set NAME=VALUE` and `--home LAT,LON`.
+"""Options several commands share: `--command`, `--set NAME=VALUE`, `--home LAT,LON` and
+`--update T:NEW.bzz[:ROBOT]`.
 
 Each is declared once (`CommandOption`, `SetOption`, `HomeOption`) and parsed once. A value
 that does not parse is a command-line error (exit 2, `error:` first), the same on `sim run`,
@@ -9,6 +10,8 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
@@ -52,6 +55,51 @@ HomeOption = Annotated[
         show_default=False,
     ),
 ]
+
+#: `--update T:NEW.bzz[:ROBOT]` (repeatable).
+UpdateOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--update",
+        metavar="T:NEW.bzz[:ROBOT]",
+        help="At second T, hand robot ROBOT (default 1) a signed over-the-air update to "
+        "NEW.bzz, compiled and tested first; it spreads over the radio (repeatable).",
+    ),
+]
+
+
+@dataclass(frozen=True)
+class UpdateAt:
+    """One `--update`: when, which script, at which robot."""
+
+    t: float
+    script: Path
+    robot: int
+
+
+def parse_updates(texts: list[str] | None) -> list[UpdateAt]:
+    """`--update T:NEW.bzz[:ROBOT]` options (a form that does not parse: exit 2)."""
+    out = []
+    for text in texts or []:
+        t_text, sep, rest = text.partition(":")
+        script, robot_text = rest, "1"
+        head, colon, tail = rest.rpartition(":")
+        if colon and tail.strip().isdigit():
+            script, robot_text = head, tail
+        try:
+            if not sep or not script:
+                raise ValueError
+            t = float(t_text)
+            robot = int(robot_text)
+        except ValueError:
+            raise usage_error(
+                f"--update {text!r}: expected T:NEW.bzz[:ROBOT], e.g. 20:buzz_scripts/v2.bzz:3"
+            ) from None
+        if not math.isfinite(t) or t < 0:
+            raise usage_error(f"--update {text!r}: T must be a time >= 0 in seconds")
+        out.append(UpdateAt(t, Path(script), robot))
+    return out
+
 
 #: A Buzz identifier: what `--set` may name.
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
@@ -125,8 +173,11 @@ __all__ = [
     "HomeOption",
     "SetOption",
     "SetValue",
+    "UpdateAt",
+    "UpdateOption",
     "parse_commands",
     "parse_home",
     "parse_sets",
+    "parse_updates",
     "set_value",
 ]
