@@ -374,13 +374,15 @@ def plaintext_of(base: Release, new: Release) -> bytes:
 
 def open_rollback(data: bytes, keys: RobotKeys) -> PatchHeader:
     """A rollback order's header once its signature checks (it has no body)."""
-    if len(data) > PREFIX_LEN:
-        raise PatchError(
-            "bad-body", f"a rollback order of {len(data)} bytes, {PREFIX_LEN} expected"
-        )
+    if len(data) > MAX_PATCH_BYTES:
+        raise PatchError("too-large", f"{len(data)} bytes, more than any patch")
     header = read_header(data, keys.operator_pub)
     if header.kind != PatchKind.ROLLBACK:
         raise PatchError("bad-format", "an update, not a rollback order")
+    if len(data) != PREFIX_LEN:
+        raise PatchError(
+            "bad-body", f"a rollback order of {len(data)} bytes, {PREFIX_LEN} expected"
+        )
     return header
 
 
