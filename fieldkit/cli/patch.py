@@ -42,17 +42,18 @@ def apply_cmd(
     from fieldkit.update.patch import MAX_PATCH_BYTES, PatchError, open_update
     from fieldkit.update.release import Release, ReleaseError, write_atomic
 
-    try:
-        robot_keys = load_robot_keys(keys)
-        old = Release.read(base)
-    except (KeyFileError, ReleaseError) as e:
-        raise fail(e) from None
-    current = _recorded_version(base) if current_version is None else current_version
+    _check_output(output)  # before any work: a bad -o is a typing mistake, not the patch
     try:
         with patch.open("rb") as f:
             data = f.read(MAX_PATCH_BYTES + 1)  # a longer file is refused, never read whole
     except OSError as e:
         raise fail(f"{patch}: cannot read: {e.strerror or e}") from None
+    try:
+        old = Release.read(base)
+        robot_keys = load_robot_keys(keys)
+    except (KeyFileError, ReleaseError) as e:
+        raise fail(e) from None
+    current = _recorded_version(base) if current_version is None else current_version
     try:
         header, new = open_update(data, base=old, keys=robot_keys, current_version=current)
     except PatchError as e:
@@ -64,11 +65,19 @@ def apply_cmd(
     except OSError as e:
         raise fail(f"{e.filename or output}: cannot write: {e.strerror or e}") from None
     wrote(output)
-    for suffix, data in ((".bdb", new.bdb), (".bpos", new.bpos)):
-        if data:
+    for suffix, side in ((".bdb", new.bdb), (".bpos", new.bpos)):
+        if side:
             wrote(output.with_suffix(suffix))
     wrote(version_file)
     typer.echo(f"version {header.version} ({new.hash[:12]}), from {old.hash[:12]}")
+
+
+def _check_output(output: Path) -> None:
+    """Fail now if OUTPUT cannot be a file: a directory, or in a directory that is not one."""
+    if output.is_dir():
+        raise fail(f"-o {output}: is a directory")
+    if not output.parent.is_dir():
+        raise fail(f"-o {output}: {output.parent} is not a directory")
 
 
 def _recorded_version(bo: Path) -> int:

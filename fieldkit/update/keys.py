@@ -58,6 +58,10 @@ class KeyFileError(FieldkitError, ValueError):
         self.hint = hint
         super().__init__(f"{file}: {problem}\nhint: {hint}")
 
+    def __reduce__(self) -> tuple[type[KeyFileError], tuple[Path, str, str]]:
+        """Pickle with all three arguments."""
+        return (KeyFileError, (self.file, self.problem, self.hint))
+
 
 @dataclass(frozen=True)
 class KeyPaths:
@@ -101,6 +105,8 @@ def init_keys(directory: Path | str) -> KeyPaths:
     `KeyFileError` names it. Each file is written whole before it appears under its name.
     """
     paths = KeyPaths(Path(directory))
+    if paths.directory.exists() and not paths.directory.is_dir():
+        raise KeyFileError(paths.directory, "is not a directory", "give a directory for the keys")
     for path in (paths.operator_key, paths.operator_pub, paths.swarm_key):
         if path.exists() or path.is_symlink():
             raise KeyFileError(
@@ -136,6 +142,7 @@ def _create(path: Path, data: bytes, mode: int) -> None:
     link to the final name (which fails if the name exists), so a crash never leaves a
     half-written key under the real name."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.unlink(missing_ok=True)  # left by a crash of an earlier process with this pid
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)
         try:

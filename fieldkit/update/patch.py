@@ -109,6 +109,10 @@ class PatchError(FieldkitError, ValueError):
         self.reason = reason
         super().__init__(message)
 
+    def __reduce__(self) -> tuple[type[PatchError], tuple[str, str]]:
+        """Pickle with both arguments (a refusal may cross a process boundary)."""
+        return (PatchError, (self.reason, str(self)))
+
 
 class PatchKind(IntEnum):
     """What a patch orders: switch to a new version, or go back from a bad one."""

@@ -423,3 +423,12 @@ def test_a_bad_swarm_key_or_hash_is_not_made() -> None:
         make_update(release(1), release(2), 1, KEYS.signing, b"short")
     with pytest.raises(ConfigError, match="hex SHA-256"):
         make_rollback(1, "abc", release(1).hash, KEYS.signing)
+
+
+def test_a_refusal_keeps_its_reason_across_processes() -> None:
+    import pickle
+
+    with pytest.raises(PatchError) as e:
+        open_update(b"junk", base=release(1), keys=KEYS.robot, current_version=0)
+    again = pickle.loads(pickle.dumps(e.value))
+    assert (again.reason, str(again)) == ("truncated", str(e.value))
