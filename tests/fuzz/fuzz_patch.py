@@ -8,11 +8,10 @@ A patch comes over the radio from anyone, so every byte is hostile. Input k of s
 made from `random.Random(f"{S}:{k}")`. Seeds are real patches between small scripts with
 fixed keys: good updates and a rollback order, and patches the operator signed that are bad
 inside (another swarm's key, a lying result hash, a broken delta, a version far ahead) or
-that another key
-signed. Inputs are those, or mutations of them: bit flips, interesting bytes, truncations,
-extensions, insertions, deletions, splices of two patches (at any offset or at a field
-boundary), header fields set to interesting values or to another patch's (mix-and-match),
-random bytes, and patches larger than any script. Each is fed to `read_header`,
+that another key signed. Inputs are those, or mutations of them: bit flips, interesting
+bytes, truncations, extensions, insertions, deletions, splices of two patches (at any offset
+or at a field boundary), header fields set to interesting values or to another patch's
+(mix-and-match), random bytes, and patches larger than any script. Each is fed to `read_header`,
 `open_update` (against the base and version it was made for, or another) or `open_rollback`.
 A few inputs fuzz the decrypted-body stage (`apply_deltas`) with mutated plaintexts.
 
