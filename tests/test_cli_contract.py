@@ -262,6 +262,10 @@ BASE: dict[str, dict[str, str | list[str]]] = {
     "run": {"file": "{d}/good.bzz"},
     "asm": {"file": "{d}/good.basm"},
     "disasm": {"file": "{d}/good.bo"},
+    "keys init": {"directory": "{d}/keys"},
+    "patch apply": {
+        "patch": "{d}/good.bo", "base": "{d}/good.bo", "keys": "{d}/keys", "output": "{d}/n.bo",
+    },
     "sim run": {"script": "{d}/good.bzz", "robots": "1", "out": "{d}/o", "seconds": "0.1"},
     "sim experiment": {"name": "coverage", "out": "{d}/o", "runs": "1", "seconds": "21"},
     "sim sweep": {
@@ -314,7 +318,10 @@ def _bad_inputs() -> list[tuple[tuple[str, ...], str, str, int, str]]:
             elif name == "out" and param.opts[0] == "--out":  # a directory to create
                 cases.append((path, name, "{d}/existing.txt", 1, "existing.txt"))
                 cases.append((path, name, "{d}/lockeddir/o", 1, "lockeddir"))
-            elif name == "out":  # an output file
+            elif name == "directory":  # a directory to create (keys init)
+                cases.append((path, name, "{d}/existing.txt", 1, "existing.txt"))
+                cases.append((path, name, "{d}/lockeddir/k", 1, "lockeddir"))
+            elif name in ("out", "output"):  # an output file
                 cases.append((path, name, "{d}/existing.txt/x.bo", 1, "existing.txt"))
                 cases.append((path, name, "{d}/adir.bo", 1, "adir"))
             else:  # a file to read
