@@ -315,6 +315,9 @@ def _bad_inputs() -> list[tuple[tuple[str, ...], str, str, int, str]]:
                 cases.append((path, name, "{d}/adir.toml", 1, "adir.toml"))
             elif kind is not Path or name == "include":
                 continue  # (an include directory that does not exist is not searched)
+            elif name == "state_dir":  # a directory to create or open
+                cases.append((path, name, "{d}/existing.txt", 1, "existing.txt"))
+                cases.append((path, name, "{d}/lockeddir/s", 1, "lockeddir"))
             elif name == "out" and param.opts[0] == "--out":  # a directory to create
                 cases.append((path, name, "{d}/existing.txt", 1, "existing.txt"))
                 cases.append((path, name, "{d}/lockeddir/o", 1, "lockeddir"))

@@ -18,7 +18,7 @@ import typer
 import bvm
 from bvm.errors import BuzzCompileError
 from fieldkit import resources
-from fieldkit.cli.errors import error_text, fail
+from fieldkit.cli.errors import error_text, fail, usage_error
 from fieldkit.cli.options import (
     CommandOption,
     SetOption,
@@ -34,6 +34,8 @@ if TYPE_CHECKING:
     from fieldkit.radio.base import RadioLink
     from fieldkit.robot.profiles import Profile
     from fieldkit.robot.rc import RcCommand
+    from fieldkit.update.keys import RobotKeys
+    from fieldkit.update.store import Committed, VersionStore
 
 
 def robot_id_from(profile: Profile, given: int | None) -> int:
@@ -106,7 +108,13 @@ def _reason(e: BaseException) -> str:
 
 def node_cmd(
     profile: Annotated[str, typer.Option("--profile", help="Device profile (name or .toml).")],
-    script: Annotated[Path, typer.Option("--script", help="The behavior, a .bzz or .bo.")],
+    script: Annotated[
+        Path | None,
+        typer.Option(
+            "--script",
+            help="The behavior, a .bzz or .bo (with --state-dir: only seeds an empty one).",
+        ),
+    ] = None,
     autopilot: Annotated[
         str | None, typer.Option("--autopilot", help="pymavlink URL (default: the profile's).")
     ] = None,
@@ -134,12 +142,25 @@ def node_cmd(
     seed: Annotated[
         int, typer.Option("--seed", help="Seed of the script's random draws (with the robot id).")
     ] = 0,
+    state_dir: Annotated[
+        Path | None,
+        typer.Option(
+            "--state-dir",
+            help="Keep script versions here: the committed one runs, a reboot included.",
+        ),
+    ] = None,
+    keys: Annotated[
+        Path | None,
+        typer.Option("--keys", help="The robot's keys for updates (operator.pub, swarm.key)."),
+    ] = None,
 ) -> None:
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
     from fieldkit.node.log import NodeLog
     from fieldkit.robot.profiles import ProfileError, load_profile
 
     # Everything that can be checked without a device is, before any port is opened.
+    if script is None and state_dir is None:
+        raise usage_error("Missing option '--script' (or --state-dir DIR with a version in it)")
     commands = parse_commands(command)  # ROBOT is checked against this node's id below
     globals_ = parse_sets(sets)
     if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
@@ -155,25 +176,27 @@ def node_cmd(
     for text, c in zip(command or [], commands, strict=True):
         if c.robot != rid:
             raise fail(f"--command {text!r} is for robot {c.robot}, this node is robot {rid}")
-    script = resources.find_script(script)
-    try:
-        if script.suffix == ".bo":
-            program = bvm.Program.load(script)
-        else:
-            program = bvm.compile_file(script, include_dirs=[str(d) for d in include or []])
-    except (BuzzCompileError, bvm.BuzzLoadError) as e:
-        raise fail(e, script) from None
-    except OSError as e:
-        raise fail(f"{script}: cannot read: {e.strerror or e}") from None
+    includes = [str(d) for d in include or []]
+    if script is not None:
+        script = resources.find_script(script)
+    say = NodeLog(rid)
+    robot_keys = load_keys(keys) if keys is not None else None
+    store: VersionStore | None = None
+    if state_dir is None:
+        assert script is not None  # checked above
+        program = load_program(script, includes)
+        label = str(script)
+    else:
+        store, version, program = open_versions(state_dir, script, includes, say)
+        label = f"version {version.version} ({version.hash[:12]}…)"
     if out is not None:
         out_dir(out)  # now, not after an hour's run
-    say = NodeLog(rid)
     # The radio first: a missing XBee fails at once, not after the wait for the autopilot.
     link_radio = open_node_radio(prof, radio, rid, say)
     try:
         _run(
             prof,
-            script,
+            label,
             program,
             rid,
             autopilot=autopilot,
@@ -185,15 +208,88 @@ def node_cmd(
             seed=seed,
             out=out,
             say=say,
+            store=store,
+            keys=robot_keys,
         )
     finally:
         if link_radio is not None:
             link_radio.close()
 
 
+def load_program(script: Path, includes: list[str]) -> bvm.Program:
+    """The program of a .bzz (compiled) or a .bo (loaded, with its .bdb and .bpos)."""
+    try:
+        if script.suffix == ".bo":
+            return bvm.Program.load(script)
+        return bvm.compile_file(script, include_dirs=includes)
+    except (BuzzCompileError, bvm.BuzzLoadError) as e:
+        raise fail(e, script) from None
+    except OSError as e:
+        raise fail(f"{script}: cannot read: {e.strerror or e}") from None
+
+
+def load_keys(directory: Path) -> RobotKeys:
+    """The robot's keys (`--keys`): the operator's public key and the swarm key, or exit 1
+    saying which file is wrong and how to mend it."""
+    from fieldkit.errors import FieldkitError
+    from fieldkit.update.keys import load_robot_keys
+
+    try:
+        return load_robot_keys(directory)
+    except FieldkitError as e:  # KeyFileError: names the file, the problem, a hint
+        raise fail(e) from None
+
+
+def open_versions(
+    state_dir: Path, script: Path | None, includes: list[str], say: Callable[[str], None]
+) -> tuple[VersionStore, Committed, bvm.Program]:
+    """The version store at `state_dir` and the program to run: its committed version, else
+    `script` seeded as version 0. Says which version runs and why."""
+    from fieldkit.update.release import Release, ReleaseError
+    from fieldkit.update.store import StoreError, VersionStore
+
+    try:
+        store = VersionStore(state_dir)
+        for note in store.notes:  # a recovery, or what a crash left
+            say(f"warning: {note}")
+        version = store.committed()
+        if version is None:
+            if script is None:
+                raise fail(
+                    f"{state_dir}: no committed version to run, and no --script to seed one\n"
+                    "hint: give --script PATH once: it becomes version 0, and the state "
+                    "directory keeps it"
+                )
+            if script.suffix == ".bo":
+                try:
+                    release = Release.read(script)
+                    release.program(str(script))  # a .bo that does not load is not seeded
+                except (ReleaseError, bvm.BuzzLoadError) as e:
+                    raise fail(e, script) from None
+            else:
+                release = Release.from_program(load_program(script, includes))
+            version = store.commit(0, store.put(release), reason=f"seeded from --script {script}")
+        elif script is not None:
+            say(f"--script {script} not used: {state_dir} holds a committed version "
+                "(--script only seeds an empty state directory)")  # fmt: skip
+        path = store.path(version.hash)
+        program = store.get(version.hash).program(str(path))
+    except StoreError as e:
+        raise fail(e) from None
+    except bvm.BuzzLoadError as e:
+        raise fail(e, path) from None
+    head = f"running version {version.version} ({version.hash[:12]}…)"
+    if version.event == "seeded":
+        say(f"{head}, {version.reason}")
+    else:
+        how = version.event.replace("-", " ")
+        say(f"{head}, {how} {version.time}: {version.reason}")
+    return store, version, program
+
+
 def _run(
     prof: Profile,
-    script: Path,
+    label: str,
     program: bvm.Program,
     rid: int,
     *,
@@ -206,6 +302,8 @@ def _run(
     seed: int,
     out: Path | None,
     say: NodeLog,
+    store: VersionStore | None,
+    keys: RobotKeys | None,
 ) -> None:
     """Connect to the autopilot, run the loop, stop cleanly; exit 1 if the script is failed."""
     from fieldkit.node.autopilot_port import MavlinkAutopilot
@@ -232,7 +330,7 @@ def _run(
             assert t.lat is not None and t.lon is not None  # what wait_position waited for
             home = (t.home[0], t.home[1], 0.0) if t.home is not None else (t.lat, t.lon, 0.0)
             until = "until stopped" if seconds is None else f"for {seconds:g} s"
-            say(f"starting {script} at {prof.node.loop_rate_hz:g} Hz {until}, home "
+            say(f"starting {label} at {prof.node.loop_rate_hz:g} Hz {until}, home "
                 f"{home[0]:.7f},{home[1]:.7f}")  # fmt: skip
             node = Node(
                 prof,
@@ -245,6 +343,8 @@ def _run(
                 out=say,
                 seed=seed,
                 globals_=globals_,
+                store=store,
+                keys=keys,
             )
             with _stop_on_signals(node):
                 node.run(seconds)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import bvm
 from fieldkit.node.log import NodeLog
@@ -33,6 +34,10 @@ from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.runtime import RobotRuntime, ScriptStatus
 from fieldkit.robot.vehicle import VehiclePort, sensors_from
+
+if TYPE_CHECKING:
+    from fieldkit.update.keys import RobotKeys
+    from fieldkit.update.store import VersionStore
 
 #: Late ticks logged one by one; after that every hundredth (a slow machine must not flood).
 LATE_TICKS_LOGGED = 10
@@ -55,12 +60,18 @@ class Node:
         out: Callable[[str], None] | None = None,
         seed: int = 0,
         globals_: Mapping[str, object] | None = None,
+        store: VersionStore | None = None,
+        keys: RobotKeys | None = None,
     ) -> None:
         """`commands` are this robot's remote-control codes (times from start); `out` takes
         each line the node logs, unstamped (default: a `NodeLog` on stdout); `seed` seeds
         the script's generators (with the robot id: each robot its own); `globals_` are
-        script globals set before `init()` (`--set`)."""
+        script globals set before `init()` (`--set`); `store` is the `--state-dir` version
+        store `program` came from, `keys` the `--keys` (both None without the options)."""
         self.profile = profile
+        #: What the update agent works with: the robot's versions and its keys.
+        self.store = store
+        self.keys = keys
         self.robot_id = robot_id
         self.vehicle = vehicle
         self.radio = radio
