@@ -1,8 +1,8 @@
 """The `fieldkit` command line: every command, from this package only.
 
 One module per command group (`buzz`: compile, run, asm, disasm; `sim`: sim run, experiment,
-sweep; `node`; `vehicle_sim`; `sitl`), `errors` for the one way errors are reported and the
-exit-code rule, `output` for where results go. Library modules never import this package.
+sweep; `node`; `vehicle_sim`; `sitl`; `update`), `errors` for the one way errors are reported
+and the exit-code rule, `output` for where results go. Library modules never import this package.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Annotated
 
 import typer
 
-from fieldkit.cli import buzz, node, sim, sitl, vehicle_sim
+from fieldkit.cli import buzz, node, sim, sitl, update, vehicle_sim
 from fieldkit.cli.errors import FieldkitGroup
 
 app = typer.Typer(
@@ -60,6 +60,7 @@ app.command("sitl")(sitl.sitl_cmd)
 for _name, _command in buzz.COMMANDS.items():
     app.command(_name)(_command)
 app.add_typer(sim.app, name="sim")
+app.command("update")(update.update_cmd)
 
 
 def main() -> None:
