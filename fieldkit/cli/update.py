@@ -14,17 +14,18 @@ import signal
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 import bvm
 from fieldkit.cli.errors import fail, report, usage_error
 from fieldkit.cli.output import wrote
 from fieldkit.errors import FieldkitError
-from fieldkit.update.keys import load_robot_keys, load_signing_key
 from fieldkit.update.release import SIDECARS, Release, write_atomic
+
+if TYPE_CHECKING:
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 #: The profiles a new version is tried on unless `--profile` says: the simulator's and the
 #: node's default robot. A swarm of other robots names its own (`--profile husky`).
@@ -213,6 +214,8 @@ def _prepare(
     profile: list[str] | None,
 ) -> _Originator:
     """Everything checked before the first run: a wrong key, base or profile fails at once."""
+    from fieldkit.update.keys import load_robot_keys, load_signing_key
+
     if patch_out.suffix in _RELEASE_SUFFIXES:
         raise fail(
             f"--patch-out {patch_out}: the new release is written beside the patch as "
