@@ -158,6 +158,7 @@ class Lexer:
         self._include_dirs = list(include_dirs)
         self._last_end: tuple[str, int, int] = (path, 1, 1)
         self.main_path = path
+        self.files: list[str] = [path]  # the main file, then each included one as opened
 
     def _error(self, src: _Source, pos: int, message: str, hint: str | None = None) -> NoReturn:
         """A compile error at byte `pos` of `src`, at its true line and 1-based column."""
@@ -328,6 +329,7 @@ class Lexer:
         if real in self._seen:  # include-once: later includes of a file are no-ops
             return
         self._seen.add(real)
+        self.files.append(opened)
         self._stack.append(_Source(raw + b"\n", opened, real))
 
     def _search_dirs(self, src: _Source) -> list[str]:
@@ -391,6 +393,19 @@ class TokenStream:
         if isinstance(item, BuzzCompileError):
             raise item
         return item
+
+
+def included_files(source: bytes, path: str, include_dirs: Sequence[str] = ()) -> list[str]:
+    """The files compiling `source` reads: `path`, then every file it includes (directly or
+    not) as opened, each once. A lexical error ends the list where it stopped the lexer:
+    the file with the error is in it (what a watcher of the script must watch)."""
+    lexer = Lexer(source, path, include_dirs)
+    try:
+        while lexer.next_token().kind is not Tok.EOF:
+            pass
+    except BuzzCompileError:
+        pass
+    return list(lexer.files)
 
 
 def tokenize(source: bytes, path: str, include_dirs: Sequence[str] = ()) -> list[Token]:

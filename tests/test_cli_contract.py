@@ -24,6 +24,7 @@ from bvm.errors import BuzzCompileError, BuzzError, BuzzLoadError
 from fieldkit.cli import app
 from fieldkit.cli.errors import error_text
 from fieldkit.cli.output import write_json
+from fieldkit.update.keys import init_keys
 
 ROOT = Path(__file__).resolve().parent.parent
 runner = CliRunner()
@@ -213,7 +214,7 @@ LEAVES = {path: c for path, c in TREE.items() if not getattr(c, "commands", None
 
 def test_the_walk_finds_every_command() -> None:
     names = {" ".join(path) for path in LEAVES}
-    assert names >= {"compile", "run", "asm", "disasm", "node", "vehicle-sim", "sitl"}
+    assert names >= {"compile", "run", "asm", "disasm", "node", "vehicle-sim", "sitl", "update"}
     assert names >= {"sim run", "sim experiment", "sim sweep"}
 
 
@@ -277,6 +278,9 @@ BASE: dict[str, dict[str, str | list[str]]] = {
     },
     "vehicle-sim": {"profile": "solo", "rate": "0"},
     "sitl": {"robots": "1", "script": "{d}/good.bzz", "out": "{d}/o", "seconds": "0.1"},
+    "update": {
+        "script": "{d}/good.bzz", "keys": "{d}/keys", "out": "{d}/o/p.patch", "base": "{d}/good.bo",
+    },
 }  # fmt: skip
 
 
@@ -342,6 +346,7 @@ def bad_files(files: Path) -> Iterator[Path]:
     """Beside `files`: unreadable files, directories where files are expected, an existing
     plain file where a directory is expected, and a directory nobody may write in."""
     assert runner.invoke(app, ["compile", str(files / "good.bzz"), "--asm"]).exit_code == 0
+    init_keys(files / "keys")
     (files / "existing.txt").write_text("not a directory")
     for name in ("adir.bzz", "adir.toml", "adir.bo"):
         (files / name).mkdir()

@@ -24,7 +24,7 @@ import gc
 import logging
 import math
 import random
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import cast
@@ -95,6 +95,17 @@ def tuned_collector() -> Iterator[None]:
         gc.unfreeze()
 
 
+@dataclass(frozen=True)
+class StartPose:
+    """Where one robot starts a run and whether it is under way: a run that begins from a
+    swarm's known state (east and north in metres from the origin, altitude above it)."""
+
+    east: float
+    north: float
+    alt: float = 0.0
+    flying: bool = False  # a UAV hovers at `alt`; a ground robot starts armed
+
+
 @dataclass
 class SimConfig:
     """Everything one simulation run depends on."""
@@ -117,6 +128,9 @@ class SimConfig:
     decode_bundles: bool = False  # parse every received bundle's bytes (slower; for tests)
     first_id: int = 1  # robot ids are first_id..first_id+robots-1 (`fieldkit run --robot-api`)
     program: bvm.Program | None = None  # already compiled (a .bo): `script` only names it
+    # Robot id -> where it starts: these robots (as many as `robots`) instead of the grid
+    # of ids first_id.. on the ground.
+    start: Mapping[int, StartPose] | None = None
 
     def validate(self) -> None:
         """Raise ConfigError for any invalid parameter."""
@@ -135,13 +149,42 @@ class SimConfig:
         if not 0 < self.seconds <= 1e6:
             raise ConfigError(f"--seconds must be > 0, got {self.seconds}")
         last = self.first_id + self.robots - 1
-        if not 0 <= self.first_id <= last <= 65535:
+        if self.start is not None:
+            self._validate_start(self.start)
+        elif not 0 <= self.first_id <= last <= 65535:
             raise ConfigError(f"robot ids {self.first_id}..{last} are not all in 0..65535")
+        ids = set(self.ids())
         for c in self.commands:
-            if not self.first_id <= c.robot <= last:
+            if c.robot not in ids:
                 raise ConfigError(
-                    f"--command for robot {c.robot}: robots are {self.first_id}..{last}"
+                    f"--command for robot {c.robot}: robots are {_id_range(self.ids())}"
                 )
+
+    def _validate_start(self, start: Mapping[int, StartPose]) -> None:
+        if len(start) != self.robots:
+            raise ConfigError(f"start state of {len(start)} robots for a swarm of {self.robots}")
+        for rid, pose in start.items():
+            if not 0 <= rid <= 65535:
+                raise ConfigError(f"start state: robot id {rid} is not in 0..65535")
+            if not all(math.isfinite(v) for v in (pose.east, pose.north, pose.alt)):
+                raise ConfigError(f"start state: robot {rid} at a position that is not finite")
+            if pose.flying and pose.alt <= 0.0:
+                raise ConfigError(
+                    f"start state: robot {rid} flies at altitude {pose.alt} m, not above ground"
+                )
+
+    def ids(self) -> list[int]:
+        """The robots' ids, in the order they step: the start state's, else first_id.."""
+        if self.start is not None:
+            return sorted(self.start)
+        return list(range(self.first_id, self.first_id + self.robots))
+
+
+def _id_range(ids: list[int]) -> str:
+    """`1..5` for consecutive ids, else the list: how an error names the robots."""
+    if ids == list(range(ids[0], ids[0] + len(ids))):
+        return f"{ids[0]}..{ids[-1]}"
+    return ", ".join(map(str, ids))
 
 
 class SimRobot:
@@ -212,11 +255,16 @@ class Simulation:
         self._heard: dict[int, nb.HeardTable] = {}
         rng = random.Random(f"layout:{config.seed}")
         side = max(1, math.ceil(math.sqrt(config.robots)))
-        for k in range(config.robots):
-            rid = config.first_id + k
-            x = (k % side) * config.spacing_m + rng.uniform(-0.2, 0.2)
-            y = (k // side) * config.spacing_m + rng.uniform(-0.2, 0.2)
-            vehicle = Vehicle.from_profile(self.profile, x=x, y=y)
+        for k, rid in enumerate(config.ids()):
+            pose = None if config.start is None else config.start[rid]
+            if pose is None:
+                x = (k % side) * config.spacing_m + rng.uniform(-0.2, 0.2)
+                y = (k // side) * config.spacing_m + rng.uniform(-0.2, 0.2)
+                vehicle = Vehicle.from_profile(self.profile, x=x, y=y)
+            else:
+                vehicle = Vehicle.from_profile(self.profile, x=pose.east, y=pose.north)
+                if pose.flying:
+                    vehicle.start_flying(pose.alt)
             runtime = RobotRuntime(
                 rid,
                 self.profile,
@@ -419,6 +467,7 @@ __all__ = [
     "RcCommand",
     "SimConfig",
     "Simulation",
+    "StartPose",
     "TICK_S",
     "ON_GROUND",
     "SPACING_M",

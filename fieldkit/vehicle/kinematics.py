@@ -177,6 +177,17 @@ class Vehicle:
         """Whether the vehicle has finished its last command and is standing still."""
         return self._hmode == _IDLE and self._vmode == _IDLE
 
+    def start_flying(self, alt: float) -> None:
+        """Begin already under way, as a run from a known swarm state does: a UAV armed and
+        hovering at `alt` metres where it stands (status 2), a ground robot armed."""
+        self.armed = True
+        if self.ground:
+            return
+        if not (alt > 0.0 and math.isfinite(alt)):
+            raise ValueError(f"a UAV flies above the ground: altitude {alt} m")
+        self.z = self._tz = float(alt)
+        self.status = IN_AIR
+
     # ------------------------------------------------------------------ commands
 
     def arm(self) -> bool:

@@ -1,0 +1,312 @@
+"""`fieldkit update SCRIPT.bzz`: compile, test, sign and encrypt a new script version.
+
+One run: compile the script (`-I` include directories), try it in the simulator on a small
+swarm of each `--profile` (a script error refuses it), make the signed, encrypted patch
+from the base release (`--base OLD.bo`, the version the swarm runs) and write it
+(`--patch-out FILE`), with the new release beside it (FILE's stem `.bo`, `.bdb`, `.bpos`
+and `.version`) for the next update to build on. `--watch` does that again on every save
+of the script or of a file it includes, each new version building on the last one written.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+import bvm
+from fieldkit.cli.errors import fail, report, usage_error
+from fieldkit.cli.output import wrote
+from fieldkit.errors import FieldkitError
+from fieldkit.update.release import SIDECARS, Release, write_atomic
+
+if TYPE_CHECKING:
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+#: The profiles a new version is tried on unless `--profile` says: the simulator's and the
+#: node's default robot. A swarm of other robots names its own (`--profile husky`).
+DEFAULT_PROFILES = ("solo",)
+
+#: Beside a release's .bo: the version number it was sent as (one line, an integer).
+VERSION_SUFFIX = ".version"
+
+#: Files the new release is written as, beside the patch: never the patch's own name.
+_RELEASE_SUFFIXES = (".bo", *SIDECARS, VERSION_SUFFIX)
+
+
+@dataclass
+class _Originator:
+    """What every run of one `fieldkit update` shares, and the base the next builds on."""
+
+    script: Path
+    include_dirs: list[str]
+    profiles: list[str]
+    signing_key: Ed25519PrivateKey
+    swarm_key: bytes
+    patch_out: Path
+    base: Release
+    base_path: Path
+    version: int
+
+    def run(self) -> None:
+        """Compile, test, patch, write: one new version (a FieldkitError or OSError says
+        which step failed; nothing is written then)."""
+        from fieldkit.sim.trial import DEFAULT_ROBOTS, DEFAULT_SECONDS, trial
+        from fieldkit.update.pipeline import NothingToUpdate, build, make_patch_file
+
+        profiles = self.profiles
+        new = build(self.script, self.include_dirs, test=lambda p: trial(p, profiles))
+        typer.echo(
+            f"update: {self.script} compiled and passed its trial ({DEFAULT_ROBOTS} robots "
+            f"of {', '.join(profiles)}, {DEFAULT_SECONDS:g} s simulated)",
+            err=True,
+        )
+        try:
+            data = make_patch_file(new, self.base, self.version, self.signing_key, self.swarm_key)
+        except NothingToUpdate as e:
+            raise NothingToUpdate(f"{self.script}: compiles to {self.base_path}: {e}") from None
+        release = self.patch_out.with_suffix(".bo")
+        # The new release and its number first: a patch on disk always has its base for
+        # the next update beside it.
+        new.write(release)
+        for path in (release, *(release.with_suffix(s) for s in SIDECARS)):
+            if path.exists():
+                wrote(path)
+        version_path = release.with_suffix(VERSION_SUFFIX)
+        write_atomic(version_path, f"{self.version}\n".encode())
+        wrote(version_path)
+        write_atomic(self.patch_out, data)
+        wrote(self.patch_out)
+        typer.echo(
+            f"update: version {self.version} ({self.base.hash[:12]} -> {new.hash[:12]}), "
+            f"patch of {len(data)} B in {self.patch_out}; the next update builds on {release}"
+        )
+        self.base, self.base_path, self.version = new, release, self.version + 1
+
+
+def update_cmd(
+    script: Annotated[
+        Path | None, typer.Argument(help="The new version, a .bzz file.", show_default=False)
+    ] = None,
+    include: Annotated[
+        list[Path] | None, typer.Option("-I", "--include", help="Extra include directory.")
+    ] = None,
+    keys: Annotated[
+        Path | None,
+        typer.Option(
+            "--keys",
+            metavar="DIR",
+            help="The operator's keys (`fieldkit keys init DIR`): operator.key, swarm.key.",
+            show_default=False,
+        ),
+    ] = None,
+    radio: Annotated[
+        str | None,
+        typer.Option(
+            "--radio",
+            metavar="URL",
+            help="Send the update into a live swarm over this radio (as `fieldkit node`).",
+            show_default=False,
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--patch-out",
+            metavar="FILE",
+            help="Write the patch to FILE, and the new release beside it (FILE's stem "
+            ".bo/.bdb/.bpos/.version), the base of the next update.",
+            show_default=False,
+        ),
+    ] = None,
+    base: Annotated[
+        Path | None,
+        typer.Option(
+            "--base",
+            metavar="OLD.bo",
+            help="The release the swarm runs (with its .bdb, .bpos and .version beside it).",
+            show_default=False,
+        ),
+    ] = None,
+    version: Annotated[
+        int | None,
+        typer.Option(
+            "--version",
+            metavar="N",
+            help="The new version's number (default: one more than OLD.version, 1 if none).",
+            show_default=False,
+        ),
+    ] = None,
+    watch: Annotated[
+        bool,
+        typer.Option(
+            "--watch",
+            help="Keep running: a new version on every save of the script or its "
+            "includes (Ctrl-C stops).",
+        ),
+    ] = False,
+    timeout: Annotated[
+        float | None,
+        typer.Option(
+            "--timeout",
+            metavar="S",
+            help="With --radio: how long to wait for every robot to switch.",
+            show_default=False,
+        ),
+    ] = None,
+    profile: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--profile",
+            help="A device profile the swarm has: the trial runs a small swarm of each "
+            f"(repeatable; default {', '.join(DEFAULT_PROFILES)}).",
+            show_default=False,
+        ),
+    ] = None,
+    rollback: Annotated[
+        bool,
+        typer.Option("--rollback", help="Order the swarm back to its previous version."),
+    ] = False,
+) -> None:
+    """Compile, test, sign and encrypt a new version of SCRIPT and write the patch
+    (--patch-out) or send it to the swarm (--radio)."""
+    if rollback:
+        # Placeholder: the radio send path (and with it --rollback) is the lead's to write.
+        raise fail("--rollback is not available yet")
+    if script is None:
+        raise usage_error("missing argument SCRIPT: the new version, a .bzz file")
+    if keys is None:
+        raise usage_error("missing option --keys DIR: the operator's keys (fieldkit keys init)")
+    patch_out = out
+    if (radio is None) == (patch_out is None):
+        raise usage_error(
+            "give one of --radio URL (send to a live swarm) or --patch-out FILE (write a file)"
+        )
+    if radio is not None:
+        # Placeholder: the radio send path is the lead's to write.
+        raise fail("--radio is not available yet")
+    assert patch_out is not None
+    if base is None:
+        raise usage_error("--patch-out needs --base OLD.bo: the release the swarm runs now")
+    if timeout is not None:
+        raise usage_error("--timeout applies to --radio only")
+    originator = _prepare(script, include, keys, patch_out, base, version, profile)
+    if not watch:
+        try:
+            originator.run()
+        except (FieldkitError, OSError) as e:
+            raise fail(e) from None
+        return
+    _watch(originator)
+
+
+def _prepare(
+    script: Path,
+    include: list[Path] | None,
+    keys: Path,
+    patch_out: Path,
+    base: Path,
+    version: int | None,
+    profile: list[str] | None,
+) -> _Originator:
+    """Everything checked before the first run: a wrong key, base or profile fails at once."""
+    from fieldkit.update.keys import load_robot_keys, load_signing_key
+
+    if patch_out.suffix in _RELEASE_SUFFIXES:
+        raise fail(
+            f"--patch-out {patch_out}: the new release is written beside the patch as "
+            f"{patch_out.with_suffix('.bo')} and its sidecars; give the patch another name, "
+            f"such as {patch_out.with_suffix('.patch')}"
+        )
+    profiles = list(dict.fromkeys(profile or DEFAULT_PROFILES))
+    _check_profiles(profiles)
+    if not keys.is_dir():
+        raise fail(
+            f"--keys {keys}: no such directory\n  hint: `fieldkit keys init {keys}` creates "
+            "the operator's keys"
+        )
+    try:
+        signing_key = load_signing_key(keys)
+        swarm_key = load_robot_keys(keys).swarm_key
+        base_release = Release.read(base)
+        base_release.program(str(base))  # a base that is not a program cannot be patched
+    except (FieldkitError, bvm.BuzzLoadError) as e:
+        raise fail(e, base) from None
+    if version is None:
+        version = _recorded_version(base) + 1
+    elif version < 1:
+        raise fail(f"--version {version}: a version number is 1 or more")
+    return _Originator(
+        script=script,
+        include_dirs=[str(d) for d in include or []],
+        profiles=profiles,
+        signing_key=signing_key,
+        swarm_key=swarm_key,
+        patch_out=patch_out,
+        base=base_release,
+        base_path=base,
+        version=version,
+    )
+
+
+def _check_profiles(profiles: list[str]) -> None:
+    """Every --profile loads (before a compile and trial that would fail on it)."""
+    from fieldkit.robot.profiles import load_profile
+
+    for name in profiles:
+        try:
+            load_profile(name)
+        except (OSError, ValueError) as e:
+            raise fail(f"--profile {name!r}: {e}") from None
+
+
+def _recorded_version(base: Path) -> int:
+    """The version number recorded beside the base release (OLD.version); 0 if none."""
+    path = base.with_suffix(VERSION_SUFFIX)
+    try:
+        text = path.read_text(encoding="ascii", errors="replace").strip()
+    except FileNotFoundError:
+        return 0
+    except OSError as e:
+        raise fail(f"{path}: cannot read: {e.strerror or e}") from None
+    if not text.isdigit():
+        raise fail(
+            f"{path}: expected the base's version number (one integer), got {text[:40]!r}\n"
+            "  hint: give the new version's number with --version N"
+        )
+    return int(text)
+
+
+def _watch(originator: _Originator) -> None:
+    """Run now, then on every save, until Ctrl-C or SIGTERM; a failed run says why and
+    waits for the next save."""
+    from fieldkit.update.monitor import Monitor
+
+    def run() -> None:
+        try:
+            originator.run()
+        except (FieldkitError, OSError) as e:
+            report(e)
+            typer.echo("update: not sent; waiting for the next save", err=True)
+
+    monitor = Monitor(originator.script, originator.include_dirs, on_save=run)
+    # Ctrl-C and SIGTERM (systemd's stop) end the watch after the run under way. Only the
+    # main thread may take signals (a test may run the command in another).
+    old: dict[signal.Signals, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, lambda *_: monitor.stop())
+    typer.echo(f"update: watching {originator.script} and its includes; Ctrl-C stops", err=True)
+    try:
+        monitor.run(first=True)
+    finally:
+        for sig, previous in old.items():
+            signal.signal(sig, previous)
+    typer.echo(f"update: stopped watching after {monitor.runs} runs", err=True)
+
+
+__all__ = ["DEFAULT_PROFILES", "VERSION_SUFFIX", "update_cmd"]
