@@ -14,9 +14,12 @@ from fieldkit.cli.options import (
     CommandOption,
     HomeOption,
     SetOption,
+    UpdateAt,
+    UpdateOption,
     parse_commands,
     parse_home,
     parse_sets,
+    parse_updates,
 )
 from fieldkit.cli.output import count_states, out_dir, progress_bar, write_json, wrote
 
@@ -26,6 +29,7 @@ if TYPE_CHECKING:
     from dask.distributed import Client
 
     from fieldkit.sim.experiments import Plan
+    from fieldkit.sim.updates import SimUpdate
 
 app = typer.Typer(
     help="Simulate a swarm: many robots, each running the script, over an imperfect radio.",
@@ -68,6 +72,7 @@ def run_cmd(
         ),
     ] = None,
     set_: SetOption = None,
+    update: UpdateOption = None,
 ) -> None:
     """Run SCRIPT on N simulated robots: OUT/summary.json, log.txt, trajectories.csv, plot.png."""
     from fieldkit.sim.simulator import (
@@ -80,6 +85,9 @@ def run_cmd(
     commands = parse_commands(command)
     globals_ = parse_sets(set_)
     lat, lon = parse_home(home)
+    updates = parse_updates(update)
+    dirs = [str(d) for d in include or []]
+    sim_updates = [_release_for(u, dirs, profile) for u in updates]
     try:
         config = SimConfig(
             script=resources.find_script(script),
@@ -96,6 +104,7 @@ def run_cmd(
             spacing_m=default_spacing(robots, range_m) if spacing is None else spacing,
             origin=(lat, lon, 0.0),
             globals=dict(globals_),
+            updates=sim_updates,
         )
         sim = Simulation(config)
     except (ConfigError, BuzzCompileError) as e:
@@ -136,6 +145,25 @@ def run_cmd(
         raise fail(f"{who} after a script error: robot {first['robot']}: {first['error']}")
 
 
+def _release_for(u: UpdateAt, include_dirs: list[str], profile: str) -> SimUpdate:
+    """An `--update`'s new version, compiled and passed through its trial as `fieldkit
+    update` does (a version that fails either is never sent: exit 1, saying why)."""
+    from fieldkit.errors import FieldkitError
+    from fieldkit.sim.trial import trial
+    from fieldkit.sim.updates import SimUpdate
+    from fieldkit.update.pipeline import build
+
+    try:
+        script = resources.find_script(u.script)
+        release = build(script, include_dirs, test=lambda p: trial(p, [profile]))
+    except FieldkitError as e:
+        raise fail(f"--update {u.t:g}:{u.script}: {e}") from None
+    typer.echo(
+        f"update: {u.script} compiled and passed its trial; robot {u.robot} gets it at {u.t:g} s"
+    )
+    return SimUpdate(u.t, release, u.robot, u.script.name)
+
+
 def _run_line(summary: dict[str, object], out: Path) -> str:
     """`sim run`'s last line: what ran, how it ended, and where the results are."""
     states = cast(dict[str, str | None], summary["final_states"])
@@ -147,6 +175,17 @@ def _run_line(summary: dict[str, object], out: Path) -> str:
         f"{len(errors)} script error{'s' if len(errors) != 1 else ''}",
         f"bundles max {summary['max_bundle_bytes']} B, mean {summary['mean_bundle_bytes']} B",
     ]
+    update = cast(dict[str, object] | None, summary.get("update"))
+    if update is not None:
+        v = update["version"]
+        if update["rolled_back"]:
+            figures.append(f"update to version {v} rolled back ({update['reason']})")
+        elif update["all_switched_s"] is not None:
+            figures.append(
+                f"update to version {v}: every robot switched by {update['all_switched_s']} s"
+            )
+        else:
+            figures.append(f"update to version {v}: not every robot switched")
     return f"sim run: {'; '.join(figures)}; results in {out}"
 
 

@@ -40,9 +40,14 @@ from fieldkit.robot.runtime import RobotRuntime
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import ON_GROUND, Sensors
 from fieldkit.sim.radio import LinkModel, RadioModel
+from fieldkit.sim.updates import SimUpdate, SwarmUpdates
+from fieldkit.update.release import Release
 from fieldkit.vehicle.kinematics import Vehicle
 
 _log = logging.getLogger("fieldkit.sim")
+
+#: The note an update frame travels with on the simulated radio (bundles carry their own).
+_UPDATE_FRAME = object()
 
 TICK_S = 0.1  # 10 Hz, ROSBuzz's BUZZRATE
 
@@ -131,6 +136,7 @@ class SimConfig:
     # Robot id -> where it starts: these robots (as many as `robots`) instead of the grid
     # of ids first_id.. on the ground.
     start: Mapping[int, StartPose] | None = None
+    updates: Sequence[SimUpdate] = ()  # over-the-air updates to inject (fieldkit/sim/updates.py)
 
     def validate(self) -> None:
         """Raise ConfigError for any invalid parameter."""
@@ -159,6 +165,13 @@ class SimConfig:
                 raise ConfigError(
                     f"--command for robot {c.robot}: robots are {_id_range(self.ids())}"
                 )
+        for u in self.updates:
+            if u.robot not in ids:
+                raise ConfigError(
+                    f"--update at robot {u.robot}: robots are {_id_range(self.ids())}"
+                )
+            if not 0 <= u.t < self.seconds:
+                raise ConfigError(f"--update at {u.t} s: the run lasts {self.seconds:g} s")
 
     def _validate_start(self, start: Mapping[int, StartPose]) -> None:
         if len(start) != self.robots:
@@ -250,6 +263,16 @@ class Simulation:
         for c in config.commands:
             self._commands.setdefault(round(c.t / TICK_S), []).append(c)
         self.robots: dict[int, SimRobot] = {}
+        self.updates = (
+            SwarmUpdates(
+                list(config.updates),
+                Release.from_program(self.program),
+                seed=config.seed,
+                tick_s=TICK_S,
+            )
+            if config.updates
+            else None
+        )
         # Each robot's radio-in, bound once: a tick delivers thousands of bundles.
         self._hear: dict[int, Callable[[int, nb.Heard, tuple[bytes, ...]], None]] = {}
         self._heard: dict[int, nb.HeardTable] = {}
@@ -279,6 +302,8 @@ class Simulation:
             self._heard[rid] = runtime.heard
             if not runtime.start(self.program, self._sensors(robot), config.globals):
                 self._note_error(robot)
+            if self.updates is not None:
+                self.updates.attach(runtime, self._sink(rid))
 
     @staticmethod
     def _link_model(config: SimConfig) -> LinkModel:
@@ -338,6 +363,9 @@ class Simulation:
         # 1. radio in
         reparse = self.config.decode_bundles
         for _sender, data, pos, receivers, sent in self.radio.receptions(t):
+            if sent is _UPDATE_FRAME:
+                self._receive_update(data, receivers)
+                continue
             if reparse or sent is None:
                 for receiver in receivers:
                     robot = robots.get(receiver)
@@ -365,6 +393,9 @@ class Simulation:
         # A robot's own vehicle moves only in its turn, after it stepped: so every robot's
         # neighbours can be computed now, for the whole swarm at once.
         neighbors = self._neighbors(t)
+        if self.updates is not None:
+            self._step_updating(t, rcs, neighbors)
+            return
         for robot in robots.values():
             # 2.-5. sensors, step, radio out, actuators: the robot's own tick
             runtime = robot.runtime
@@ -376,6 +407,51 @@ class Simulation:
                 self._actuate(robot, out.order)
             robot.vehicle.step(TICK_S)
         self.tick += 1
+
+    def _step_updating(
+        self, t: int, rcs: dict[int, RcCommand], neighbors: dict[int, nb.Columns]
+    ) -> None:
+        """The robots' ticks when updates run: the same phases, with the update agent's
+        decision before the step and its frame after it (fieldkit/update/host.py)."""
+        updates = self.updates
+        assert updates is not None
+        for line in updates.inject_due(t):
+            self._log_line(t, line)
+        for robot in self.robots.values():
+            runtime = robot.runtime
+            updater = updates.updaters[robot.id]
+            sensors = self._sensors(robot)
+            updater.before_step(sensors)
+            if runtime.error is None:
+                self._failed.discard(robot.id)  # a new version started: it may fail anew
+            out = runtime.tick(sensors, rcs.get(robot.id), neighbors.get(robot.id))
+            if runtime.error is not None and robot.id not in self._failed:
+                self._note_error(robot)
+            self._send(robot, out.bundle, out.messages)
+            frame = updater.after_step()
+            if frame is not None:
+                room = self.radio.room(t, robot.id)
+                if room is None or len(frame) <= room:
+                    self.radio.broadcast(t, robot.id, frame, note=_UPDATE_FRAME)
+            if out.order is not None:
+                self._actuate(robot, out.order)
+            robot.vehicle.step(TICK_S)
+        updates.after_tick(t)
+        self.tick += 1
+
+    def _receive_update(self, data: bytes, receivers: Sequence[int]) -> None:
+        updaters = self.updates.updaters if self.updates is not None else {}
+        for receiver in receivers:
+            updater = updaters.get(receiver)
+            if updater is not None:
+                updater.receive(data)
+
+    def _log_line(self, t: int, text: str) -> None:
+        """A line of the simulator's own (not a robot's) in the run's log."""
+        line = f"[{t * TICK_S:9.3f} s] sim: {text}"
+        self.log.append(line)
+        if self.on_log is not None:
+            self.on_log(line)
 
     def _neighbors(self, t: int) -> dict[int, nb.Columns]:
         """Each running robot's neighbours at tick t, for the whole swarm in one pass: from
@@ -459,7 +535,23 @@ class Simulation:
             # its failsafe, listed in `in_failsafe`.
             "errors": list(self.errors),
             "in_failsafe": self.in_failsafe(),
+        } | self.update_summary()
+
+    def update_summary(self) -> dict[str, object]:
+        """`script_versions` (robot id to the hex SHA-256 of the bytecode it runs) and
+        `update` (what became of the last injected update; None without one)."""
+        if self.updates is None:
+            launch = Release(self.program.bytecode).hash
+            return {"script_versions": {str(r): launch for r in self.robots}, "update": None}
+        records = self.updates.records
+        sent = self.updates.bytes_sent()
+        out: dict[str, object] = {
+            "script_versions": self.updates.versions(),
+            "update": records[-1].summary(sent) if records else None,
         }
+        if len(records) > 1:
+            out["updates"] = [r.summary(sent) for r in records]
+        return out
 
 
 __all__ = [

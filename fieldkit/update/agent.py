@@ -563,7 +563,7 @@ class UpdateAgent:
         self._serve(add)
         self._pull(add)
         self._offer(add)
-        if records and busy:
+        if records and (busy or now == self._last_status):
             self._entries(add, room)
         if not records:
             return None

@@ -75,7 +75,8 @@ class RobotUpdater:
         runtime = self.runtime
         if runtime.status is ScriptStatus.FAILED and runtime.error != self._failed_seen:
             self._failed_seen = runtime.error
-            self.agent.script_failed(runtime.error or "script error")
+            # The error's first line (its place and problem), not the Buzz call stack.
+            self.agent.script_failed((runtime.error or "script error").splitlines()[0])
 
     def _apply(self, action: Action, sensors: Sensors) -> None:
         runtime = self.runtime
