@@ -49,6 +49,8 @@ from fieldkit.robot import geo
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.sim.tracks import SAMPLE_S, Tracks, write_tracks
+from fieldkit.update.operator import GROUND_ID, OperatorSession
+from fieldkit.update.release import Release
 from fieldkit.vehicle.pty import PtyPair, open_pty
 from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME
 from fieldkit.vehicle.sim.vehicle import SimVehicle
@@ -138,6 +140,7 @@ class RadioRelay:
         self.range_m = range_m
         self.rng = random.Random(seed)
         self.stats: Counter[str] = Counter()
+        self.ground: GroundStation | None = None  # an operator's radio beside one robot
 
     def service(self) -> None:
         """Forward every complete transmit frame the nodes wrote since the last call."""
@@ -154,6 +157,8 @@ class RadioRelay:
 
     def _forward(self, sender: SitlRobot, rf: bytes) -> None:
         sender.bytes_sent += len(rf)
+        if self.ground is not None and sender is self.ground.robot:
+            self.ground.hear(rf)
         self.stats["frames"] += 1
         here = sender.vehicle.vehicle
         frame = receive_packet(SERIAL_BASE + sender.id, rf)
@@ -178,6 +183,56 @@ class RadioRelay:
                 self.stats["overflow"] += 1  # the node is not reading: a full UART drops
 
 
+@dataclass(frozen=True)
+class SitlUpdate:
+    """`--update T:NEW.bzz[:ROBOT]`: at second T of the run, a ground station next to robot
+    ROBOT starts serving the signed patch to this release."""
+
+    t: float
+    release: Release
+    robot: int = 1
+    name: str = ""
+
+
+class GroundStation:
+    """The operator's radio beside one robot: it hears that robot and only that robot hears
+    it, as `fieldkit update --radio` would from a laptop in the field."""
+
+    def __init__(self, robot: SitlRobot, session: OperatorSession) -> None:
+        self.robot = robot
+        self.session = session
+        self.heard: list[bytes] = []
+        self.msgid = 0
+        self.ticks = 0
+        self.done_s: float | None = None
+        self.outcome: tuple[bool, str] | None = None
+
+    def hear(self, rf: bytes) -> None:
+        """RF data the robot sent: an XbeeMav standard message's words are the frame."""
+        if len(rf) > 3 and rf[0] == ord("S"):
+            self.heard.append(rf[3:])
+
+    def service(self, t: float) -> None:
+        """Run the session's ticks due by run time `t` (10 a second)."""
+        while self.ticks <= t * 10:
+            frame = self.session.step(self.ticks, self.heard)
+            self.heard = []
+            self.ticks += 1
+            if frame is not None:
+                self.msgid = (self.msgid + 1) & 0xFF
+                rf = b"S" + bytes((GROUND_ID, self.msgid)) + frame
+                try:
+                    os.write(
+                        self.robot.radio_pty.master, receive_packet(SERIAL_BASE + GROUND_ID, rf)
+                    )
+                except (BlockingIOError, OSError):
+                    pass  # a full UART drops, as on the air
+            if self.outcome is None:
+                self.outcome = self.session.outcome()
+                if self.outcome is not None:
+                    self.done_s = round(self.ticks / 10, 1)
+
+
 @dataclass
 class SitlConfig:
     """One software-in-the-loop run."""
@@ -197,6 +252,7 @@ class SitlConfig:
     home: tuple[float, float] = DEFAULT_HOME
     sets: Mapping[str, int | float | str] = field(default_factory=dict)  # node --set
     extra: list[str] = field(default_factory=list)  # more `fieldkit node` arguments
+    update: SitlUpdate | None = None  # an over-the-air update during the run
 
 
 def _homes(cfg: SitlConfig) -> list[tuple[float, float]]:
@@ -229,6 +285,9 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
                 SitlRobot(rid, vehicle, ap, radio, FrameReader(1), cfg.out / f"robot{rid}")
             )
         relay = RadioRelay(robots, cfg.drop, cfg.range_m, cfg.seed, cfg.corrupt)
+        updating = _Updating(cfg, robots) if cfg.update is not None else None
+        if updating is not None:
+            relay.ground = updating.ground
         for r in robots:
             r.out.mkdir(parents=True, exist_ok=True)
             argv = [
@@ -255,6 +314,8 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
                 *(a for d in cfg.include_dirs for a in ("-I", d)),
                 *cfg.extra,
             ]
+            if updating is not None:
+                argv += ["--state-dir", str(r.out / "state"), "--keys", str(updating.robot_keys)]
             for name, value in cfg.sets.items():
                 argv += ["--set", f"{name}={value}"]  # the node parses it back the same
             for c in cfg.commands:
@@ -291,6 +352,8 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
             last = now
             relay.service()
             if released is not None:
+                if updating is not None:
+                    updating.service(now - released)
                 tracker.sample(now - released)
                 if progress is not None:
                     progress(min(now - released, cfg.seconds), cfg.seconds)
@@ -308,7 +371,63 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
             r.radio_pty.close()
     _write_logs(cfg, robots)
     write_tracks(tracker.tracks, cfg.out, f"sitl {cfg.script.name}, {cfg.robots} robots")
-    return _summary(cfg, robots, relay)
+    return _summary(cfg, robots, relay, updating)
+
+
+class _Updating:
+    """An `--update` run: the keys, the ground station, and when the patch goes out."""
+
+    def __init__(self, cfg: SitlConfig, robots: Sequence[SitlRobot]) -> None:
+        import bvm
+        from fieldkit.update.keys import init_keys, load_robot_keys, load_signing_key
+
+        assert cfg.update is not None
+        self.update = cfg.update
+        paths = init_keys(cfg.out / "keys")
+        # A robot holds the operator's public key and the swarm key, never the signing key.
+        self.robot_keys = cfg.out / "robot-keys"
+        self.robot_keys.mkdir(mode=0o700, exist_ok=True)
+        for src in (paths.operator_pub, paths.swarm_key):
+            dest = self.robot_keys / src.name
+            dest.write_bytes(src.read_bytes())
+            dest.chmod(0o600)
+        self.signing_key = load_signing_key(cfg.out / "keys")
+        self.keys = load_robot_keys(self.robot_keys)
+        # What every node seeds its store with from --script: version 0.
+        program = bvm.compile_file(cfg.script, include_dirs=list(cfg.include_dirs))
+        self.base = Release.from_program(program)
+        robot = next(r for r in robots if r.id == cfg.update.robot)
+        self.ground = GroundStation(robot, OperatorSession())
+        self.injected_s: float | None = None
+        self.patch_bytes = 0
+
+    def service(self, t: float) -> None:
+        """At run time `t`: send the patch once it is due, and run the ground station."""
+        if self.injected_s is None and t >= self.update.t:
+            from fieldkit.update.patch import make_update
+
+            patch = make_update(
+                self.base, self.update.release, 1, self.signing_key, self.keys.swarm_key
+            )
+            self.ground.session.send(patch, 1, self.base.hash)
+            self.injected_s = round(t, 1)
+            self.patch_bytes = len(patch)
+        self.ground.service(t)
+
+    def summary(self, nodes: Mapping[str, Any]) -> dict[str, object]:
+        """The summary's `update`, from the ground station and the nodes' own figures."""
+        sent = sum(int((n.get("update") or {}).get("update_bytes_sent", 0)) for n in nodes.values())
+        outcome = self.ground.outcome
+        bad = self.ground.session.agent.bad.get(1)
+        return {
+            "version": 1,
+            "injected_s": self.injected_s,
+            "all_switched_s": self.ground.done_s if outcome is not None and outcome[0] else None,
+            "rolled_back": bad is not None,
+            "reason": bad,
+            "patch_bytes": self.patch_bytes,
+            "update_bytes_sent": sent,
+        }
 
 
 def _read_outputs(robots: Sequence[SitlRobot]) -> None:
@@ -367,10 +486,12 @@ class _Tracker:
         self.next_t = (math.floor(t / SAMPLE_S) + 1) * SAMPLE_S
 
 
-def _summary(cfg: SitlConfig, robots: list[SitlRobot], relay: RadioRelay) -> dict:
+def _summary(
+    cfg: SitlConfig, robots: list[SitlRobot], relay: RadioRelay, updating: _Updating | None
+) -> dict:
     states: dict[str, object] = {}
     errors: list[dict[str, object]] = []
-    nodes: dict[str, object] = {}
+    nodes: dict[str, dict[str, Any]] = {}
     not_finished: list[int] = []
     in_failsafe: list[int] = []
     for r in robots:
@@ -401,6 +522,8 @@ def _summary(cfg: SitlConfig, robots: list[SitlRobot], relay: RadioRelay) -> dic
         "bytes_sent_per_robot": {str(r.id): r.bytes_sent for r in robots},
         "relay": dict(relay.stats),
         "errors": errors,
+        "script_versions": {k: n.get("script_version") for k, n in nodes.items()},
+        "update": updating.summary(nodes) if updating is not None else None,
         "nodes": nodes,
     }
     write_json(cfg.out / "summary.json", summary)

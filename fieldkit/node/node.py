@@ -36,6 +36,7 @@ from fieldkit.robot.runtime import RobotRuntime, ScriptStatus
 from fieldkit.robot.vehicle import VehiclePort, sensors_from
 
 if TYPE_CHECKING:
+    from fieldkit.update.host import RobotUpdater
     from fieldkit.update.keys import RobotKeys
     from fieldkit.update.store import VersionStore
 
@@ -98,6 +99,12 @@ class Node:
             translate_ahead=True,
         )
         self.runtime.start(program, sensors_from(vehicle.telemetry(), self.frame), globals_)
+        # Over-the-air updates need both the versions (--state-dir) and the keys (--keys).
+        self.updater: RobotUpdater | None = None
+        if store is not None and keys is not None:
+            from fieldkit.node.updates import node_updater
+
+            self.updater = node_updater(self.runtime, store, keys, self.out, seed=seed)
 
     def _script_log(self, text: str) -> None:
         self.out(text.removeprefix(self._script_tag))
@@ -113,17 +120,26 @@ class Node:
         """Run the five phases once."""
         now = self.clock()
         runtime = self.runtime
-        # 1. radio in
+        updater = self.updater
+        # 1. radio in: update frames to the update agent, bundles to the runtime
         if self.radio is not None:
             for _sender, data in self.radio.poll():
-                runtime.receive_bundle(data)
+                if updater is None or not updater.receive(data):
+                    runtime.receive_bundle(data)
         # 2. sensors
         self.vehicle.poll()
         sensors = sensors_from(self.vehicle.telemetry(), self.frame)
-        # 3.-5. step, radio out, actuators
+        # 3. step: the update's decision (stand by, switch, roll back) first
+        if updater is not None:
+            updater.before_step(sensors)
         out = runtime.tick(sensors, self._due_command(now), time_ns=time.time_ns())
+        # 4. radio out: the bundle, then the update frame if there is one
+        frame = updater.after_step() if updater is not None else None
         if self.radio is not None:
             self.radio.send(out.bundle)
+            if frame is not None:
+                self.radio.send(frame)
+        # 5. actuators
         if out.order is not None:
             self.vehicle.execute(out.order, self.frame)
 
@@ -185,6 +201,23 @@ class Node:
             "errors": [runtime.error] if runtime.error is not None else [],
             "final_state": runtime.state,
             "failsafe": runtime.supervisor.failsafe,
+        } | self._update_summary()
+
+    def _update_summary(self) -> dict[str, object]:
+        """The version the robot runs at the end and what its update agent did."""
+        updater = self.updater
+        if updater is None:
+            return {"script_version": None, "update": None}
+        agent = updater.agent
+        return {
+            "script_version": agent.running_hash,
+            "update": {
+                "version": agent.version,
+                "bad_versions": sorted(agent.bad),
+                "update_bytes_sent": agent.bytes_sent,
+                "counters": dict(sorted(agent.counters.items())),
+                "actions": [f"{t}: {type(a).__name__} {a.version}" for t, a in updater.actions],
+            },
         }
 
 

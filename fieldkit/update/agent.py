@@ -221,6 +221,7 @@ class UpdateAgent:
         self.verdicts: dict[int, tuple[Reason, int]] = {}  # bad version -> reason, until tick
         self.counters: Counter[str] = Counter()
         self.events: list[str] = []  # what happened, for the host's log (host empties it)
+        self.verified: list[tuple[int, bytes]] = []  # patches that checked out (host empties it)
         self.bytes_sent = 0
         self.now = 0
         self._busy_until = -1
@@ -396,6 +397,7 @@ class UpdateAgent:
         t.version, t.base = version, short(release.hash)
         self.transfers[t.digest] = t
         self.staged = (version, new)
+        self.verified.append((version, data))
         self.highest = max(self.highest, version)
         self.counters["patches_verified"] += 1
         how = "made here" if local else "received"

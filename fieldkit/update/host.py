@@ -10,7 +10,8 @@ three points of the one-way tick:
     radio out   `after_step()`: the agent learns a script error of this step (in grace it
                 rolls the version back) and hands over its frame, if any
 
-`on_change`, if given, sees every version the robot starts (a store commits it there).
+`on_change`, if given, sees every action carried out (a store commits versions there), and
+`on_patch` every patch that checked out (a store keeps it for neighbours that catch up).
 """
 
 from __future__ import annotations
@@ -33,12 +34,14 @@ class RobotUpdater:
         *,
         log: Callable[[str], None] | None = None,
         on_change: Callable[[Action], None] | None = None,
+        on_patch: Callable[[int, bytes], None] | None = None,
     ) -> None:
         """`log` takes each line worth the operator's attention (versions, refusals)."""
         self.runtime = runtime
         self.agent = agent
         self.log = log
         self.on_change = on_change
+        self.on_patch = on_patch
         self.actions: list[tuple[int, Action]] = []  # (tick, action), what the robot did
         self._failed_seen: str | None = None
 
@@ -81,11 +84,13 @@ class RobotUpdater:
     def _apply(self, action: Action, sensors: Sensors) -> None:
         runtime = self.runtime
         self.actions.append((runtime.ticks, action))
-        if isinstance(action, Standby):
-            runtime.stand_by(f"update to version {action.version}: waiting for the swarm")
-            return
-        if isinstance(action, Resume):
-            runtime.resume()
+        if isinstance(action, Standby | Resume):
+            if isinstance(action, Standby):
+                runtime.stand_by(f"update to version {action.version}: waiting for the swarm")
+            else:
+                runtime.resume()
+            if self.on_change is not None:
+                self.on_change(action)
             return
         # Switch or Rollback: a new program, started as the robot starts one (global code,
         # init()), with the host's state (flight status, position, home) untouched.
@@ -102,6 +107,12 @@ class RobotUpdater:
             self._note_failure()  # an init() that fails is a failure in grace
 
     def _flush(self) -> None:
+        verified = self.agent.verified
+        if verified:
+            if self.on_patch is not None:
+                for version, data in verified:
+                    self.on_patch(version, data)
+            verified.clear()
         events = self.agent.events
         if events and self.log is not None:
             for line in events:
