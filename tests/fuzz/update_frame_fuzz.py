@@ -64,7 +64,7 @@ if __package__:
     from . import runner
 else:  # run as a file: python tests/fuzz/update_frame_fuzz.py
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-    from fuzz import runner  # type: ignore[no-redef]
+    from fuzz import runner
 
 TARGETS = ("decode", "agent")
 INTERESTING_BYTES = (0, 1, 2, 5, 6, 7, 8, 16, 23, 24, 0x7F, 0x80, 0xFE, 0xFF)

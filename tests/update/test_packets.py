@@ -44,7 +44,7 @@ entries = st.builds(
     pk.Entries, st.lists(st.builds(pk.Entry, u16, u16, phases, u32), max_size=24).map(tuple)
 )
 verdicts = st.builds(pk.Verdict, u32, st.sampled_from(Reason))
-RECORDS = {
+RECORDS: dict[str, st.SearchStrategy[pk.Record]] = {
     "STATUS": statuses,
     "OFFER": offers,
     "WANT": wants,
