@@ -227,6 +227,9 @@ class UpdateAgent:
         self._busy_until = -1
         self._progress_at = 0  # tick the barrier last saw a robot become ready
         self._waiting = 1 << 30  # live robots not ready, at the last look
+        # A bad version this robot cannot leave (nothing older to run): noted once, not
+        # retried every tick.
+        self._stuck_on: int | None = None
         self._last_status = -(10**9)
         self._last_want = -(10**9)
 
@@ -441,9 +444,10 @@ class UpdateAgent:
             return None
         action: Action | None = None
         phase = self.phase
-        if phase is Phase.GRACE and self.version in self.bad:
+        leave = self.version in self.bad and self.version != self._stuck_on
+        if phase is Phase.GRACE and leave:
             action = self._roll_back()
-        elif phase is Phase.RUNNING and self.version in self.bad:
+        elif phase is Phase.RUNNING and leave:
             action = self._roll_back()
         elif phase is Phase.STANDBY:
             if self.target in self.bad:
@@ -526,6 +530,7 @@ class UpdateAgent:
         bad = self.version
         reason = self.bad[bad]
         if not self.previous:
+            self._stuck_on = bad
             self._enter(Phase.RUNNING, 0)
             self.events.append(f"version {bad} is bad but this robot has nothing older to run")
             return None
@@ -541,7 +546,9 @@ class UpdateAgent:
         """This tick's update frame, within the byte budget (None: nothing to send)."""
         cfg = self.config
         now = self.now
-        room = cfg.budget_bytes - 8
+        # Padding rounds a frame up to whole words, and no frame exceeds MAX_FRAME_BYTES:
+        # the room is what is left of the budget in whole words, after word 0.
+        room = min(cfg.budget_bytes, pk.MAX_FRAME_BYTES) // 8 * 8 - 8
         records: list[pk.Record] = []
 
         def add(record: pk.Record, size: int) -> bool:

@@ -239,6 +239,17 @@ def _check_record(r: Record, body: bytes) -> None:
         raise ValueError(f"{type(r).__name__} of {len(body)} bytes")
     if isinstance(r, Chunk) and not 1 <= len(r.data) <= CHUNK_BYTES:
         raise ValueError(f"a chunk of {len(r.data)} bytes")
+    # What the decoder refuses, the encoder refuses too: every frame sent can be read.
+    phases = [getattr(r, "phase", None)]
+    if isinstance(r, Entries):
+        phases = [e.phase for e in r.entries]
+    for phase in phases:
+        if phase is not None and phase not in Phase._value2member_map_:
+            raise ValueError(
+                f"{type(r).__name__}: phase {phase} is not one of {[int(p) for p in Phase]}"
+            )
+    if isinstance(r, Verdict) and r.reason not in Reason._value2member_map_:
+        raise ValueError(f"VERDICT reason {r.reason} is not one of {[int(x) for x in Reason]}")
     for name in ("digest", "running", "base"):
         value = getattr(r, name, None)
         if value is not None and len(value) != SHORT:
