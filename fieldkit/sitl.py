@@ -397,7 +397,7 @@ class _Updating:
         program = bvm.compile_file(cfg.script, include_dirs=list(cfg.include_dirs))
         self.base = Release.from_program(program)
         robot = next(r for r in robots if r.id == cfg.update.robot)
-        self.ground = GroundStation(robot, OperatorSession())
+        self.ground = GroundStation(robot, OperatorSession(self.keys.swarm_key))
         self.injected_s: float | None = None
         self.patch_bytes = 0
 

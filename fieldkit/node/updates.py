@@ -18,6 +18,7 @@ from fieldkit.robot.runtime import RobotRuntime
 from fieldkit.update.agent import Action, Resume, Rollback, Switch, UpdateAgent
 from fieldkit.update.host import RobotUpdater
 from fieldkit.update.keys import RobotKeys
+from fieldkit.update.packets import frame_key
 from fieldkit.update.patch import open_update, read_header
 from fieldkit.update.release import Release
 from fieldkit.update.store import VersionStore
@@ -50,6 +51,7 @@ def node_updater(
         highest=committed.highest,
         bad={v: "rolled back before this start" for v in committed.bad},
         seed=seed,
+        frame_key=frame_key(keys.swarm_key),
     )
     for version in store.patches():
         data = store.patch(version)

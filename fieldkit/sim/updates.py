@@ -19,6 +19,7 @@ from fieldkit.robot.runtime import RobotRuntime
 from fieldkit.update.agent import AgentConfig, Rollback, Switch, UpdateAgent
 from fieldkit.update.host import RobotUpdater
 from fieldkit.update.keys import RobotKeys
+from fieldkit.update.packets import frame_key
 from fieldkit.update.patch import make_update, open_update
 from fieldkit.update.release import Release
 
@@ -79,6 +80,7 @@ class SwarmUpdates:
         # Keys made for this run: the operator's, and the swarm's every robot holds.
         self.signing_key = Ed25519PrivateKey.generate()
         self.keys = RobotKeys(self.signing_key.public_key(), os.urandom(32))
+        self.frame_key = frame_key(self.keys.swarm_key)
         self.updaters: dict[int, RobotUpdater] = {}
         self.records: list[UpdateRecord] = []
 
@@ -90,7 +92,13 @@ class SwarmUpdates:
     def attach(self, runtime: RobotRuntime, log: object) -> RobotUpdater:
         """Give robot `runtime` its update agent (every robot starts on `first`)."""
         agent = UpdateAgent(
-            runtime.id, 0, self.first, self.verify, config=self.config, seed=self.seed
+            runtime.id,
+            0,
+            self.first,
+            self.verify,
+            config=self.config,
+            seed=self.seed,
+            frame_key=self.frame_key,
         )
         updater = RobotUpdater(runtime, agent, log=log)  # type: ignore[arg-type]
         self.updaters[runtime.id] = updater

@@ -47,6 +47,8 @@ _log = logging.getLogger("fieldkit.update")
 MAX_PATCH_BYTES = 256 * 1024
 #: A version this far past ours is a fast-forward attack, never pulled (nor verified).
 MAX_VERSION_STEP = 1000
+#: Refused patch digests remembered (the oldest forgotten first).
+REFUSED_KEPT = 256
 
 #: Serial-number arithmetic on the u16 heartbeat: `a` is newer than `b`.
 _HALF = 1 << 15
@@ -197,10 +199,15 @@ class UpdateAgent:
         bad: dict[int, str] | None = None,
         config: AgentConfig | None = None,
         seed: int = 0,
+        frame_key: bytes | None = None,
     ) -> None:
         """`release` is what the robot runs as `version` (None: a ground station, which
         serves patches and is never waited for); `previous` the versions before it, newest
-        first (rollback targets); `highest` and `bad` what the store remembers."""
+        first (rollback targets); `highest` and `bad` what the store remembers;
+        `frame_key` (`packets.frame_key` of the swarm key) seals every frame sent and is
+        checked on every frame heard. Every host gives it; only tests of the protocol
+        alone leave it out."""
+        self.frame_key = frame_key
         self.id = robot_id
         self.version = version
         self.release = release
@@ -217,7 +224,8 @@ class UpdateAgent:
         self.heartbeat = 0
         self.peers: dict[int, _Peer] = {}
         self.transfers: dict[bytes, _Transfer] = {}
-        self.refused: set[bytes] = set()  # digests that failed verification: never again
+        # Digests that failed verification: never pulled again (the newest REFUSED_KEPT).
+        self.refused: dict[bytes, None] = {}
         self.verdicts: dict[int, tuple[Reason, int]] = {}  # bad version -> reason, until tick
         self.counters: Counter[str] = Counter()
         self.events: list[str] = []  # what happened, for the host's log (host empties it)
@@ -267,6 +275,8 @@ class UpdateAgent:
     def receive(self, data: bytes, sender_hint: int | None = None) -> None:
         """An update frame off the radio (a bad one costs a counter, nothing more)."""
         try:
+            if self.frame_key is not None:
+                data = pk.unseal(data, self.frame_key)
             frame = pk.decode(data)
         except pk.FrameError as e:
             self.counters["bad_frames"] += 1
@@ -341,7 +351,7 @@ class UpdateAgent:
             return
         if not 0 < o.total <= MAX_PATCH_BYTES:
             self.counters["refused_too_large"] += 1
-            self.refused.add(o.digest)
+            self._refused(o.digest)
             self.events.append(f"patch offer of {o.total} bytes refused: larger than any patch")
             return
         # One pull at a time: a newer offer replaces an unfinished older one.
@@ -410,13 +420,22 @@ class UpdateAgent:
 
     def _refuse(self, t: _Transfer, reason: str, detail: str) -> None:
         self.transfers.pop(t.digest, None)
-        self.refused.add(t.digest)
+        self._refused(t.digest)
         self.counters[f"refused_{reason}"] += 1
         self.events.append(f"patch refused ({reason}): {detail}")
 
+    def _refused(self, digest: bytes) -> None:
+        self.refused[digest] = None
+        if len(self.refused) > REFUSED_KEPT:
+            del self.refused[next(iter(self.refused))]
+
     def _learn_bad(self, version: int, reason: Reason | None, detail: str) -> None:
-        """Version `version` is bad; a verdict with a reason is passed on for a while."""
+        """Version `version` is bad; a verdict with a reason is passed on for a while. A
+        version that could never be accepted (past the fast-forward bound) is ignored: the
+        list stays bounded whatever a sender claims."""
         if version in self.bad or version <= 0:
+            return
+        if version > max(self.version, self.highest) + MAX_VERSION_STEP:
             return
         if reason is None:
             self.bad[version] = detail
@@ -548,7 +567,8 @@ class UpdateAgent:
         now = self.now
         # Padding rounds a frame up to whole words, and no frame exceeds MAX_FRAME_BYTES:
         # the room is what is left of the budget in whole words, after word 0.
-        room = min(cfg.budget_bytes, pk.MAX_FRAME_BYTES) // 8 * 8 - 8
+        tag = pk.TAG_BYTES if self.frame_key is not None else 0
+        room = min(cfg.budget_bytes, pk.MAX_FRAME_BYTES) // 8 * 8 - 8 - tag
         records: list[pk.Record] = []
 
         def add(record: pk.Record, size: int) -> bool:
@@ -577,6 +597,8 @@ class UpdateAgent:
         if not records:
             return None
         data = pk.encode(pk.Frame(self.id, tuple(records)))
+        if self.frame_key is not None:
+            data = pk.seal(data, self.frame_key)
         self.bytes_sent += len(data)
         return data
 

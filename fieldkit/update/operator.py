@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from fieldkit.update.agent import AgentConfig, UpdateAgent
-from fieldkit.update.packets import Phase
+from fieldkit.update.packets import Phase, frame_key
 from fieldkit.update.release import Release
 
 #: The ground station's id on the radio: above every robot id the radios carry (0..254).
@@ -52,8 +52,13 @@ def _refuse_all(_data: bytes, _base: Release, _current: int) -> tuple[int, Relea
 class OperatorSession:
     """A ground station serving one update (or ordering a rollback) to a live swarm."""
 
-    def __init__(self, *, config: AgentConfig | None = None, ground_id: int = GROUND_ID) -> None:
-        self.agent = UpdateAgent(ground_id, 0, None, _refuse_all, config=config)
+    def __init__(
+        self, swarm_key: bytes, *, config: AgentConfig | None = None, ground_id: int = GROUND_ID
+    ) -> None:
+        """`swarm_key` seals the session's frames and checks the robots' ones."""
+        self.agent = UpdateAgent(
+            ground_id, 0, None, _refuse_all, config=config, frame_key=frame_key(swarm_key)
+        )
         self.version: int | None = None  # the version being sent (None: only listening)
         self.rollback_of: int | None = None
         self._told: dict[int, RobotView] = {}

@@ -28,6 +28,8 @@ what is wrong and where; it never raises anything else.
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import struct
 from dataclasses import dataclass
 from enum import IntEnum
@@ -48,6 +50,9 @@ CHUNK_BYTES = 96
 WANT_WINDOW = 64
 #: Bytes of a truncated hash or digest on the air.
 SHORT = 8
+
+#: Bytes of the authentication tag a sealed frame ends with (one word).
+TAG_BYTES = 8
 
 _WORD0 = struct.Struct("<HBBHH")
 _REC = struct.Struct("<BB")
@@ -261,6 +266,43 @@ def _swap(data: bytes) -> bytes:
     return b"".join(data[i : i + 8][::-1] for i in range(0, len(data), 8))
 
 
+def frame_key(swarm_key: bytes) -> bytes:
+    """The key that seals update frames, derived from the swarm key every robot holds (a
+    key of its own, so a tag can never be confused with a patch's encryption)."""
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.hazmat.primitives.kdf.hkdf import HKDF
+
+    kdf = HKDF(algorithm=hashes.SHA256(), length=32, salt=None, info=b"fieldkit-frames-v1")
+    return kdf.derive(swarm_key)
+
+
+def _tag(key: bytes, air: bytes) -> bytes:
+    return hmac.new(key, air, hashlib.sha256).digest()[:TAG_BYTES]
+
+
+def seal(air: bytes, key: bytes) -> bytes:
+    """An encoded frame with its tag appended: HMAC-SHA256 under `key`, first 8 bytes."""
+    if len(air) + TAG_BYTES > MAX_FRAME_BYTES:
+        raise ValueError(
+            f"a sealed frame of {len(air) + TAG_BYTES} bytes, more than {MAX_FRAME_BYTES}"
+        )
+    return air + _tag(key, air)
+
+
+def unseal(data: bytes, key: bytes) -> bytes:
+    """The encoded frame inside a sealed one; FrameError if the tag is not the swarm's (a
+    radio in range without the swarm key, or a frame damaged on the way)."""
+    n = len(data)
+    if n < 8 + TAG_BYTES or n % 8:
+        raise FrameError(f"{n} bytes, not a sealed frame (whole words, at least two)", 0)
+    air, tag = data[:-TAG_BYTES], data[-TAG_BYTES:]
+    if not hmac.compare_digest(tag, _tag(key, air)):
+        raise FrameError(
+            "its tag does not check out: not sealed with this swarm's key", n - TAG_BYTES
+        )
+    return air
+
+
 def frame_type(data: bytes) -> int | None:
     """The payload64 type of air bytes (16 an update frame, 2 a bundle, 1 ROSBuzz's OTA
     message), or None if they are not even one word. ROSBuzz tells its OTA message by the
@@ -363,6 +405,7 @@ __all__ = [
     "Reason",
     "Record",
     "SHORT",
+    "TAG_BYTES",
     "STATUS_BYTES",
     "Status",
     "UPDATE_FRAME",
@@ -375,6 +418,9 @@ __all__ = [
     "decode",
     "encode",
     "entries_bytes",
+    "frame_key",
     "frame_type",
+    "seal",
+    "unseal",
     "image_size",
 ]

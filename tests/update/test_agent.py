@@ -248,3 +248,39 @@ def test_offers_that_no_script_could_need_are_never_pulled() -> None:
         a.receive(pk.encode(f))
     assert not a.transfers
     assert a.counters["refused_too_large"] == 1
+
+
+def test_frames_sealed_with_another_swarm_key_are_refused_and_change_nothing() -> None:
+    key, other = pk.frame_key(b"k" * 32), pk.frame_key(b"x" * 32)
+    robot = UpdateAgent(1, 1, V1, stand_in_verify, previous=[(0, V0)], frame_key=key)
+    # An outsider in range forges a verdict against the running version, and an offer.
+    forged = pk.encode(pk.Frame(9, (pk.Verdict(1, pk.Reason.OPERATOR),)))
+    robot.receive(forged)  # no tag at all
+    robot.receive(pk.seal(forged, other))  # a tag, under another key
+    assert robot.counters["bad_frames"] == 2 and not robot.bad
+    assert robot.tick(0) is None and robot.version == 1
+    # The same verdict sealed with the swarm's key is obeyed: the swarm rolls back.
+    robot.receive(pk.seal(forged, key))
+    assert isinstance(robot.tick(1), Rollback) and robot.version == 0
+
+
+def test_a_sealed_swarm_spreads_an_update_and_sends_only_sealed_frames() -> None:
+    key = pk.frame_key(b"s" * 32)
+    swarm = Swarm(4, line(4), seed=8)
+    for a in swarm.agents.values():
+        a.frame_key = key
+    warm(swarm, 100)
+    swarm.agents[1].inject(stand_in_patch(V0, V1, 1))
+    swarm.run_until(lambda: all(a.version == 1 for a in swarm.agents.values()), 3000)
+    assert all(a.counters["bad_frames"] == 0 for a in swarm.agents.values())
+    for a in swarm.agents.values():
+        f = a.frame()
+        if f is not None:
+            pk.decode(pk.unseal(f, key))
+
+
+def test_verdicts_for_versions_that_could_never_be_accepted_are_not_kept() -> None:
+    robot = UpdateAgent(1, 5, V0, stand_in_verify)
+    frame = pk.Frame(2, tuple(pk.Verdict(v, pk.Reason.OPERATOR) for v in (10_000, 20_000, 7)))
+    robot.receive(pk.encode(frame))
+    assert list(robot.bad) == [7]  # 7 may yet come; the others are past the fast-forward bound
