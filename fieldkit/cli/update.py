@@ -175,8 +175,12 @@ def update_cmd(
     """Compile, test, sign and encrypt a new version of SCRIPT and write the patch
     (--patch-out) or send it to the swarm (--radio)."""
     if rollback:
-        # Placeholder: the radio send path (and with it --rollback) is the lead's to write.
-        raise fail("--rollback is not available yet")
+        if script is not None or out is not None or base is not None or watch:
+            raise usage_error("--rollback takes no SCRIPT, --patch-out, --base or --watch")
+        if keys is None or radio is None:
+            raise usage_error("--rollback needs --keys DIR and --radio URL")
+        _rollback_over_radio(keys, radio, _timeout(timeout))
+        return
     if script is None:
         raise usage_error("missing argument SCRIPT: the new version, a .bzz file")
     if keys is None:
@@ -187,8 +191,10 @@ def update_cmd(
             "give one of --radio URL (send to a live swarm) or --patch-out FILE (write a file)"
         )
     if radio is not None:
-        # Placeholder: the radio send path is the lead's to write.
-        raise fail("--radio is not available yet")
+        if watch:
+            raise usage_error("--watch writes patch files (--patch-out); send each with --radio")
+        _send_over_radio(script, include, keys, radio, base, version, profile, _timeout(timeout))
+        return
     assert patch_out is not None
     if base is None:
         raise usage_error("--patch-out needs --base OLD.bo: the release the swarm runs now")
@@ -251,6 +257,214 @@ def _prepare(
         base_path=base,
         version=version,
     )
+
+
+#: How long `--radio` listens to the swarm before it sends (robots tell their version
+#: once a second when nothing is happening).
+LISTEN_S = 5.0
+
+#: `--timeout` by default: time for a big, lossy swarm to pass a patch on and agree.
+DEFAULT_TIMEOUT_S = 600.0
+
+#: Where the operator keeps every release sent over the radio (beside the keys), so the
+#: next update finds the version the swarm runs without `--base`.
+RELEASES_DIR = "releases"
+
+
+def _timeout(timeout: float | None) -> float:
+    if timeout is None:
+        return DEFAULT_TIMEOUT_S
+    if not 0 < timeout < float("inf"):
+        raise fail(f"--timeout must be a number of seconds > 0, got {timeout}")
+    return timeout
+
+
+def _open_ground_radio(url: str) -> Any:
+    """The operator's radio: the same URLs as `fieldkit node --radio`, as the ground id."""
+    from fieldkit.radio import open_radio
+    from fieldkit.update.operator import GROUND_ID
+
+    try:
+        return open_radio(url, GROUND_ID)
+    except (OSError, ValueError) as e:
+        raise fail(f"--radio {url}: cannot open: {e}") from None
+
+
+def _listen(session: Any, link: Any, url: str, hear: Any = None) -> dict[int, tuple[int, bytes]]:
+    """What each robot runs, heard for LISTEN_S; exit 1 if no robot is heard."""
+    from fieldkit.update.operator import run_session
+
+    typer.echo(f"update: listening to the swarm on {url} for {LISTEN_S:g} s", err=True)
+    run_session(session, link, seconds=LISTEN_S, say=typer.echo, until=lambda: False, hear=hear)
+    running = session.running()
+    if not running:
+        raise fail(
+            f"no robot heard on {url} in {LISTEN_S:g} s\n  hint: robots run `fieldkit node "
+            "--state-dir DIR --keys DIR` with the same swarm key, on this radio's channel"
+        )
+    return running
+
+
+def _known_release(
+    prefix: bytes, base: Path | None, keys: Path, include: list[Path] | None
+) -> Release | None:
+    """The release whose hash starts with `prefix`: --base (a .bo, or the .bzz the robots
+    were started with) or one this laptop sent before."""
+    candidates: list[Path] = [base] if base is not None else []
+    candidates += sorted((keys / RELEASES_DIR).glob("*.bo"))
+    for path in candidates:
+        try:
+            if path.suffix == ".bzz":
+                program = bvm.compile_file(path, include_dirs=[str(d) for d in include or []])
+                release = Release.from_program(program)
+            else:
+                release = Release.read(path)
+        except (FieldkitError, bvm.BuzzCompileError) as e:
+            raise fail(e) from None
+        if bytes.fromhex(release.hash).startswith(prefix):
+            return release
+    return None
+
+
+def _start_state(positions: dict[int, tuple[float, float, float]]) -> Any:
+    """The swarm as its bundles placed it, for the trial (None if nothing was heard)."""
+    from fieldkit.robot import geo
+    from fieldkit.sim.simulator import StartPose
+    from fieldkit.sim.trial import StartState
+
+    if not positions:
+        return None
+    lat0, lon0, _ = next(iter(positions.values()))
+    frame = geo.LocalFrame(lat0, lon0, 0.0)
+    poses = {}
+    for rid, (lat, lon, alt) in positions.items():
+        east, north, _ = frame.from_gps(lat, lon, 0.0)
+        poses[rid] = StartPose(east, north, max(alt, 0.0), flying=alt > 1.0)
+    return StartState(poses)
+
+
+def _send_over_radio(
+    script: Path,
+    include: list[Path] | None,
+    keys: Path,
+    url: str,
+    base: Path | None,
+    version: int | None,
+    profile: list[str] | None,
+    timeout: float,
+) -> None:
+    """Listen, find the version the swarm runs, build and test the new one (from the swarm's
+    own positions), send the patch and report robot by robot until all switched."""
+    from fieldkit.robot import bundle as wirebundle
+    from fieldkit.sim.trial import trial
+    from fieldkit.update.keys import load_robot_keys, load_signing_key
+    from fieldkit.update.operator import OperatorSession, run_session
+    from fieldkit.update.pipeline import build, make_patch_file
+
+    profiles = list(dict.fromkeys(profile or DEFAULT_PROFILES))
+    _check_profiles(profiles)
+    try:
+        signing_key = load_signing_key(keys)
+        swarm_key = load_robot_keys(keys).swarm_key
+    except FieldkitError as e:
+        raise fail(e) from None
+    link = _open_ground_radio(url)
+    positions: dict[int, tuple[float, float, float]] = {}
+
+    def hear(data: bytes) -> None:
+        try:
+            b = wirebundle.decode(data)
+        except wirebundle.BundleError:
+            return
+        positions[b.robot] = (b.lat, b.lon, b.alt)
+
+    try:
+        session = OperatorSession(swarm_key)
+        running = _listen(session, link, url, hear)
+        hashes = {h for _, h in running.values()}
+        if len(hashes) > 1:
+            split = ", ".join(
+                f"robot {r}: version {v} ({h.hex()})" for r, (v, h) in running.items()
+            )
+            raise fail(f"the swarm is split ({split})\n  hint: wait for it to agree, or --rollback")
+        (prefix,) = hashes
+        swarm_version = max(v for v, _ in running.values())
+        base_release = _known_release(prefix, base, keys, include)
+        if base_release is None:
+            raise fail(
+                f"the swarm runs version {swarm_version} ({prefix.hex()}...), of which this "
+                f"laptop has no copy\n  hint: give --base OLD.bo, or the .bzz the robots were "
+                "started with"
+            )
+        floor = max([swarm_version, *session.agent.bad])
+        new_version = floor + 1 if version is None else version
+        if new_version <= floor:
+            raise fail(f"--version {version}: the swarm is at version {floor}; give more")
+        start = _start_state(positions)
+        try:
+            new = build(
+                script,
+                [str(d) for d in include or []],
+                test=lambda p: trial(p, profiles, start=start),
+            )
+            patch = make_patch_file(new, base_release, new_version, signing_key, swarm_key)
+        except FieldkitError as e:
+            raise fail(e) from None
+        kept = keys / RELEASES_DIR / f"{new.hash}.bo"
+        new.write(kept)
+        write_atomic(kept.with_suffix(VERSION_SUFFIX), f"{new_version}\n".encode())
+        wrote(kept)
+        typer.echo(
+            f"update: sending version {new_version} ({base_release.hash[:12]} -> "
+            f"{new.hash[:12]}, patch of {len(patch)} B) to {len(running)} robots on {url}"
+        )
+        session.send(patch, new_version, base_release.hash)
+        took = run_session(session, link, seconds=timeout, say=typer.echo)
+    except KeyboardInterrupt:
+        raise fail("interrupted: the robots that have the patch go on with the update") from None
+    finally:
+        link.close()
+    _finish(session, took, timeout)
+
+
+def _rollback_over_radio(keys: Path, url: str, timeout: float) -> None:
+    """Listen, find the swarm's newest version, order it rolled back, report until done."""
+    from fieldkit.update.keys import load_robot_keys
+    from fieldkit.update.operator import OperatorSession, run_session
+
+    try:
+        swarm_key = load_robot_keys(keys).swarm_key
+    except FieldkitError as e:
+        raise fail(e) from None
+    link = _open_ground_radio(url)
+    try:
+        session = OperatorSession(swarm_key)
+        running = _listen(session, link, url)
+        newest = max(v for v, _ in running.values())
+        if newest == 0:
+            raise fail(
+                "the swarm runs version 0, the version it started with: nothing to roll back to"
+            )
+        typer.echo(f"update: ordering version {newest} rolled back on {url}")
+        session.order_rollback(newest)
+        took = run_session(session, link, seconds=timeout, say=typer.echo)
+    except KeyboardInterrupt:
+        raise fail("interrupted: robots that heard the order go on rolling back") from None
+    finally:
+        link.close()
+    _finish(session, took, timeout)
+
+
+def _finish(session: Any, took: float, timeout: float) -> None:
+    """Exit 0 with the outcome, or 1 saying why (rolled back, or time up and who is behind)."""
+    outcome = session.outcome()
+    if outcome is None:
+        behind = ", ".join(str(r) for r in session.behind()) or "none heard"
+        raise fail(f"no outcome after {timeout:g} s (--timeout): robots not there yet: {behind}")
+    ok, why = outcome
+    if not ok:
+        raise fail(why)
+    typer.echo(f"update: {why} ({took:.1f} s)")
 
 
 def _check_profiles(profiles: list[str]) -> None:

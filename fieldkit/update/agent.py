@@ -140,6 +140,7 @@ class _Peer:
     fresh_at: int  # local tick its heartbeat last advanced
     changed_at: int  # local tick its entry last changed
     sent_at: int = -1  # local tick this robot last passed the entry on
+    running: bytes = b""  # SHORT hash of what it runs, when heard from it directly
 
 
 @dataclass
@@ -317,6 +318,7 @@ class UpdateAgent:
     def _on_status(self, sender: int, s: pk.Status) -> None:
         entry = s.target if s.phase in (Phase.STANDBY, Phase.GRACE) else s.version
         self._note(sender, s.heartbeat, s.phase, entry)
+        self.peers[sender].running = s.running
         if s.bad and s.bad not in self.bad:
             self._learn_bad(s.bad, None, f"robot {sender} says it was rolled back")
         if s.phase is not Phase.OPERATOR and s.phase is not Phase.GRACE:

@@ -16,11 +16,17 @@ declared bad and every robot returns to the one before it.
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from fieldkit.update.agent import AgentConfig, UpdateAgent
 from fieldkit.update.packets import Phase, frame_key
 from fieldkit.update.release import Release
+
+if TYPE_CHECKING:
+    from fieldkit.radio.base import RadioLink
 
 #: The ground station's id on the radio: above every robot id the radios carry (0..254).
 GROUND_ID = 255
@@ -78,6 +84,14 @@ class OperatorSession:
             rid: v.version
             for rid, v in self.robots().items()
             if v.phase in (Phase.RUNNING, Phase.GRACE)
+        }
+
+    def running(self) -> dict[int, tuple[int, bytes]]:
+        """Robot id -> (version, short hash) of what it runs, for robots heard directly."""
+        return {
+            rid: (p.version, p.running)
+            for rid, p in sorted(self.agent.live().items())
+            if p.running and p.phase in (Phase.RUNNING, Phase.GRACE)
         }
 
     def newest(self) -> int:
@@ -143,4 +157,42 @@ class OperatorSession:
         return out
 
 
-__all__ = ["GROUND_ID", "OperatorSession", "RobotView"]
+def run_session(
+    session: OperatorSession,
+    radio: RadioLink,
+    *,
+    seconds: float,
+    say: Callable[[str], None],
+    until: Callable[[], bool] | None = None,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+    hear: Callable[[bytes], None] | None = None,
+) -> float:
+    """Drive `session` over `radio` at 10 Hz for at most `seconds`, or until `until()` (by
+    default: the session's outcome is known); `say` takes each robot's change of state,
+    `hear` every other frame (bundles). The seconds it ran."""
+    from fieldkit.update.packets import UPDATE_FRAME, frame_type
+
+    done = until if until is not None else lambda: session.outcome() is not None
+    start = clock()
+    tick = 0
+    while clock() - start < seconds and not done():
+        frames = []
+        for _sender, data in radio.poll():
+            if frame_type(data) == UPDATE_FRAME:
+                frames.append(data)
+            elif hear is not None:
+                hear(data)
+        out = session.step(tick, frames)
+        if out is not None:
+            radio.send(out)
+        for line in session.changes():
+            say(line)
+        tick += 1
+        delay = start + tick * 0.1 - clock()
+        if delay > 0:
+            sleep(delay)
+    return clock() - start
+
+
+__all__ = ["GROUND_ID", "OperatorSession", "RobotView", "run_session"]
