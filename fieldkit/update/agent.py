@@ -1,9 +1,10 @@
 """One robot's side of an over-the-air update: gossip, pull, verify, agree, switch, roll back.
 
-A sans-I/O state machine (docs/update.md#spreading): the host feeds it the update frames
-the radio heard (`receive`) and the tick count (`tick`); it answers with at most one frame
-to broadcast, within its byte budget, and at most one `Action` for the host to carry out on
-the robot's runtime. It never touches a port, a file or a clock.
+A sans-I/O state machine (docs/update.md#spreading-agreeing-switching-rolling-back): the
+host feeds it the update frames the radio heard (`receive`) and the tick count (`tick`); it
+answers with at most one frame to broadcast, within its byte budget, and at most one
+`Action` for the host to carry out on the robot's runtime. It never touches a port, a
+file or a clock.
 
 The protocol, in short:
 
