@@ -16,7 +16,6 @@ app = typer.Typer(
 )
 
 #: The file beside a .bo that records its version number (one integer, as text).
-VERSION_SUFFIX = ".version"
 
 
 @app.command("apply")
@@ -40,7 +39,7 @@ def apply_cmd(
     (OUTPUT, its .bdb and .bpos beside it, and OUTPUT.version); on any problem write nothing."""
     from fieldkit.update.keys import KeyFileError, load_robot_keys
     from fieldkit.update.patch import MAX_PATCH_BYTES, PatchError, open_update
-    from fieldkit.update.release import Release, ReleaseError, write_atomic
+    from fieldkit.update.release import Release, ReleaseError, read_version, write_version
 
     _check_output(output)  # before any work: a bad -o is a typing mistake, not the patch
     try:
@@ -53,15 +52,18 @@ def apply_cmd(
         robot_keys = load_robot_keys(keys)
     except (KeyFileError, ReleaseError) as e:
         raise fail(e) from None
-    current = _recorded_version(base) if current_version is None else current_version
+    try:
+        hint = "it holds one integer; or give --current-version N"
+        current = read_version(base, hint) if current_version is None else current_version
+    except ReleaseError as e:
+        raise fail(e) from None
     try:
         header, new = open_update(data, base=old, keys=robot_keys, current_version=current)
     except PatchError as e:
         raise fail(f"{patch}: rejected ({e.reason}): {e}") from None
-    version_file = output.with_suffix(VERSION_SUFFIX)
     try:
         new.write(output)
-        write_atomic(version_file, f"{header.version}\n".encode())
+        version_file = write_version(output, header.version)
     except OSError as e:
         raise fail(f"{e.filename or output}: cannot write: {e.strerror or e}") from None
     wrote(output)
@@ -80,21 +82,4 @@ def _check_output(output: Path) -> None:
         raise fail(f"-o {output}: {output.parent} is not a directory")
 
 
-def _recorded_version(bo: Path) -> int:
-    """The version recorded beside a .bo (X.version), 0 when there is none."""
-    path = bo.with_suffix(VERSION_SUFFIX)
-    try:
-        text = path.read_text(encoding="ascii", errors="replace").strip()
-    except FileNotFoundError:
-        return 0
-    except OSError as e:
-        raise fail(f"{path}: cannot read: {e.strerror or e}") from None
-    if not text.isdigit():
-        raise fail(
-            f"{path}: not a version number: {text[:40]!r}\n"
-            f"hint: it holds one integer; or give --current-version N"
-        )
-    return int(text)
-
-
-__all__ = ["VERSION_SUFFIX", "app"]
+__all__ = ["app"]

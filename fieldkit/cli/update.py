@@ -22,7 +22,15 @@ import bvm
 from fieldkit.cli.errors import fail, report, usage_error
 from fieldkit.cli.output import wrote
 from fieldkit.errors import FieldkitError
-from fieldkit.update.release import SIDECARS, Release, write_atomic
+from fieldkit.update.release import (
+    SIDECARS,
+    VERSION_SUFFIX,
+    Release,
+    ReleaseError,
+    read_version,
+    write_atomic,
+    write_version,
+)
 
 if TYPE_CHECKING:
     from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
@@ -30,9 +38,6 @@ if TYPE_CHECKING:
 #: The profiles a new version is tried on unless `--profile` says: the simulator's and the
 #: node's default robot. A swarm of other robots names its own (`--profile husky`).
 DEFAULT_PROFILES = ("solo",)
-
-#: Beside a release's .bo: the version number it was sent as (one line, an integer).
-VERSION_SUFFIX = ".version"
 
 #: Files the new release is written as, beside the patch: never the patch's own name.
 _RELEASE_SUFFIXES = (".bo", *SIDECARS, VERSION_SUFFIX)
@@ -76,8 +81,7 @@ class _Originator:
         for path in (release, *(release.with_suffix(s) for s in SIDECARS)):
             if path.exists():
                 wrote(path)
-        version_path = release.with_suffix(VERSION_SUFFIX)
-        write_atomic(version_path, f"{self.version}\n".encode())
+        version_path = write_version(release, self.version)
         wrote(version_path)
         write_atomic(self.patch_out, data)
         wrote(self.patch_out)
@@ -243,7 +247,10 @@ def _prepare(
     except (FieldkitError, bvm.BuzzLoadError) as e:
         raise fail(e, base) from None
     if version is None:
-        version = _recorded_version(base) + 1
+        try:
+            version = read_version(base, "give the new version's number with --version N") + 1
+        except ReleaseError as e:
+            raise fail(e) from None
     elif version < 1:
         raise fail(f"--version {version}: a version number is 1 or more")
     return _Originator(
@@ -412,7 +419,7 @@ def _send_over_radio(
             raise fail(e) from None
         kept = keys / RELEASES_DIR / f"{new.hash}.bo"
         new.write(kept)
-        write_atomic(kept.with_suffix(VERSION_SUFFIX), f"{new_version}\n".encode())
+        write_version(kept, new_version)
         wrote(kept)
         typer.echo(
             f"update: sending version {new_version} ({base_release.hash[:12]} -> "
@@ -478,23 +485,6 @@ def _check_profiles(profiles: list[str]) -> None:
             raise fail(f"--profile {name!r}: {e}") from None
 
 
-def _recorded_version(base: Path) -> int:
-    """The version number recorded beside the base release (OLD.version); 0 if none."""
-    path = base.with_suffix(VERSION_SUFFIX)
-    try:
-        text = path.read_text(encoding="ascii", errors="replace").strip()
-    except FileNotFoundError:
-        return 0
-    except OSError as e:
-        raise fail(f"{path}: cannot read: {e.strerror or e}") from None
-    if not text.isdigit():
-        raise fail(
-            f"{path}: expected the base's version number (one integer), got {text[:40]!r}\n"
-            "  hint: give the new version's number with --version N"
-        )
-    return int(text)
-
-
 def _watch(originator: _Originator) -> None:
     """Run now, then on every save, until Ctrl-C or SIGTERM; a failed run says why and
     waits for the next save."""
@@ -523,4 +513,4 @@ def _watch(originator: _Originator) -> None:
     typer.echo(f"update: stopped watching after {monitor.runs} runs", err=True)
 
 
-__all__ = ["DEFAULT_PROFILES", "VERSION_SUFFIX", "update_cmd"]
+__all__ = ["DEFAULT_PROFILES", "update_cmd"]

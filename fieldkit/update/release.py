@@ -23,6 +23,9 @@ MAX_RELEASE_BYTES = 1024 * 1024
 #: The sidecars beside a .bo, in the order a release holds them.
 SIDECARS = (".bdb", ".bpos")
 
+#: Beside a release's .bo: the version number it was sent as (one line, an integer).
+VERSION_SUFFIX = ".version"
+
 
 class ReleaseError(FieldkitError, ValueError):
     """Files that do not make a release: what and where."""
@@ -104,6 +107,30 @@ def _read(path: Path) -> bytes:
     return data
 
 
+def read_version(bo_path: Path, hint: str) -> int:
+    """The version number recorded beside a .bo (X.version), 0 when there is none;
+    ReleaseError (with `hint`) if the file holds anything but one integer."""
+    path = bo_path.with_suffix(VERSION_SUFFIX)
+    try:
+        text = path.read_text(encoding="ascii", errors="replace").strip()
+    except FileNotFoundError:
+        return 0
+    except OSError as e:
+        raise ReleaseError(f"{path}: cannot read: {e.strerror or e}") from None
+    if not text.isdigit():
+        raise ReleaseError(
+            f"{path}: expected a version number (one integer), got {text[:40]!r}\n  hint: {hint}"
+        )
+    return int(text)
+
+
+def write_version(bo_path: Path, version: int) -> Path:
+    """Record `version` beside a .bo (X.version, written whole then renamed); its path."""
+    path = bo_path.with_suffix(VERSION_SUFFIX)
+    write_atomic(path, f"{version}\n".encode())
+    return path
+
+
 def write_atomic(path: Path, data: bytes) -> None:
     """Write `path` so that a crash leaves the old file or the new one, never a mix: a
     temporary file beside it, fsync, rename over, fsync the directory."""
@@ -126,6 +153,9 @@ __all__ = [
     "Release",
     "ReleaseError",
     "SIDECARS",
+    "VERSION_SUFFIX",
+    "read_version",
+    "write_version",
     "sha256_hex",
     "write_atomic",
 ]

@@ -196,7 +196,7 @@ def test_base_and_version_file_problems(work: Path) -> None:
     assert code == 1 and err.startswith(f"error: {work / 'missing.bo'}: cannot read")
     (work / "v1.version").write_text("seven\n")
     code, _, err = invoke(*args, "--base", work / "v1.bo")
-    assert code == 1 and err.startswith(f"error: {work / 'v1.version'}: not a version number")
+    assert code == 1 and err.startswith(f"error: {work / 'v1.version'}: expected a version number")
     code, _, err = invoke(
         "patch",
         "apply",
