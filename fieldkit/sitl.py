@@ -33,6 +33,7 @@ import math
 import os
 import random
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -42,6 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from fieldkit.errors import FieldkitError
 from fieldkit.node.log import wall_stamp
 from fieldkit.radio.xbee import FrameReader, TransmitRequest, receive_packet
 from fieldkit.results import write_json
@@ -383,6 +385,11 @@ class _Updating:
 
         assert cfg.update is not None
         self.update = cfg.update
+        # A run starts from scratch: version 0 everywhere, under keys of its own. What an
+        # earlier run left in the same out/ (keys, the nodes' versions) would otherwise be
+        # refused (keys are never overwritten) or run instead of --script.
+        for old in (cfg.out / "keys", cfg.out / "robot-keys", *(r.out / "state" for r in robots)):
+            shutil.rmtree(old, ignore_errors=True)
         paths = init_keys(cfg.out / "keys")
         # A robot holds the operator's public key and the swarm key, never the signing key.
         self.robot_keys = cfg.out / "robot-keys"
@@ -394,9 +401,14 @@ class _Updating:
         self.signing_key = load_signing_key(cfg.out / "keys")
         self.keys = load_robot_keys(self.robot_keys)
         # What every node seeds its store with from --script: version 0.
-        program = bvm.compile_file(cfg.script, include_dirs=list(cfg.include_dirs))
-        self.base = Release.from_program(program)
-        robot = next(r for r in robots if r.id == cfg.update.robot)
+        if cfg.script.suffix == ".bo":
+            self.base = Release.read(cfg.script)
+        else:
+            program = bvm.compile_file(cfg.script, include_dirs=list(cfg.include_dirs))
+            self.base = Release.from_program(program)
+        robot = next((r for r in robots if r.id == cfg.update.robot), None)
+        if robot is None:
+            raise FieldkitError(f"update at robot {cfg.update.robot}: robots are 1..{len(robots)}")
         self.ground = GroundStation(robot, OperatorSession(self.keys.swarm_key))
         self.injected_s: float | None = None
         self.patch_bytes = 0
@@ -419,6 +431,13 @@ class _Updating:
         sent = sum(int((n.get("update") or {}).get("update_bytes_sent", 0)) for n in nodes.values())
         outcome = self.ground.outcome
         bad = self.ground.session.agent.bad.get(1)
+        # The ground station only hears that it was rolled back (a verdict carries a code):
+        # the robot that judged it says why (its script error, its barrier's timeout).
+        judged = [
+            (n.get("update") or {}).get("judged_bad", {}).get("1")
+            for _, n in sorted(nodes.items(), key=lambda kv: int(kv[0]))
+        ]
+        bad = next((j for j in judged if j), bad)
         return {
             "version": 1,
             "injected_s": self.injected_s,

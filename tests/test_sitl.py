@@ -11,9 +11,12 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+import bvm
 from fieldkit.cli import app
 from fieldkit.robot.profiles import load_profile
-from fieldkit.sitl import SitlConfig, run
+from fieldkit.sitl import SitlConfig, SitlUpdate, run
+from fieldkit.update.release import Release
+from fieldkit.update.store import VersionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -146,3 +149,99 @@ def test_sitl_says_where_logs_in_time_order_and_fails_on_a_script_error(tmp_path
     summary = json.loads((out / "summary.json").read_text())
     assert summary["in_failsafe"] == [2] and summary["not_finished"] == []
     assert summary["globals"] == {"X": "hello"} and summary["home"] == [10.5, 20.25]
+
+
+# ------------------------------------------------------------------ over-the-air updates
+
+V0 = 'function init() { log("version zero") }\nfunction step() { x = 0 }\n'
+V2 = 'function init() { log("version two") }\nfunction step() { x = 2 }\n'
+#: Passes a few seconds of trial, then fails on robot 3 alone (8 s after it starts): in the
+#: grace period after the switch, so the swarm rolls back.
+LATE_BUG = (
+    "function init() { n = 0 }\n"
+    "function step() {\n  n = n + 1\n  if (n > 80 and id == 3) { foo() }\n}\n"
+)
+
+
+def release_of(source: str, name: str) -> Release:
+    return Release.from_program(bvm.compile_source(source, name))
+
+
+def committed(out: Path, rid: int) -> tuple[int, Release]:
+    """What robot `rid`'s state directory would start after a reboot (verified)."""
+    store = VersionStore(out / f"robot{rid}" / "state")
+    c = store.committed()
+    assert c is not None
+    return c.version, store.get(c.hash)
+
+
+def test_sitl_update_reaches_every_node_and_is_committed(tmp_path: Path) -> None:
+    (tmp_path / "v0.bzz").write_text(V0)
+    (tmp_path / "v2.bzz").write_text(V2)
+    out = tmp_path / "run"
+    # The nodes' --seconds start together (see the relay test); 3 s in, the ground station
+    # beside robot 2 starts serving the patch. 20 s leaves the update (2-3 s here) room on a
+    # loaded machine.
+    result = CliRunner().invoke(
+        app,
+        ["sitl", "--robots", "3", "--script", str(tmp_path / "v0.bzz"), "--seconds", "20",
+         "--out", str(out), "--update", f"3:{tmp_path / 'v2.bzz'}:2"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    new = release_of(V2, str(tmp_path / "v2.bzz"))
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["script_versions"] == {"1": new.hash, "2": new.hash, "3": new.hash}
+    update = summary["update"]
+    assert update["version"] == 1 and update["injected_s"] >= 3.0
+    assert update["all_switched_s"] is not None and not update["rolled_back"]
+    assert update["patch_bytes"] > 0 and update["update_bytes_sent"] > update["patch_bytes"]
+    # Durable: each robot would start the new version after a reboot, whole.
+    for rid in (1, 2, 3):
+        assert committed(out, rid) == (1, new)
+    assert "update to version 1: every robot switched by" in result.stdout.splitlines()[-1]
+    assert sum("version two" in ln for ln in (out / "log.txt").read_text().splitlines()) == 3
+
+
+def test_sitl_update_that_fails_after_its_switch_rolls_every_node_back(tmp_path: Path) -> None:
+    script = tmp_path / "v0.bzz"
+    script.write_text(V0)
+    base = release_of(V0, str(script))
+    cfg = SitlConfig(
+        script=script,
+        robots=3,
+        out=tmp_path / "run",
+        profile=load_profile("solo"),
+        # The bug fires 8 s after the switch (about 6 s in); the rollback needs a moment more.
+        seconds=30.0,
+        update=SitlUpdate(3.0, release_of(LATE_BUG, "bug.bzz"), 1, "bug.bzz"),
+    )
+    summary = run(cfg)
+    assert summary["not_finished"] == []
+    update = summary["update"]
+    assert update["rolled_back"] and "robot 3" in update["reason"], update
+    assert "bug.bzz:4" in update["reason"]
+    # Every robot back on version 0, and every store says so: version 1 is bad for good.
+    assert summary["script_versions"] == {"1": base.hash, "2": base.hash, "3": base.hash}
+    for rid in (1, 2, 3):
+        assert committed(tmp_path / "run", rid) == (0, base)
+        store = VersionStore(tmp_path / "run" / f"robot{rid}" / "state")
+        assert 1 in (store.committed() or pytest.fail("nothing committed")).bad
+
+
+def test_sitl_takes_one_update_per_run(tmp_path: Path) -> None:
+    result = CliRunner().invoke(
+        app,
+        ["sitl", "--robots", "2", "--script", "task_allocation.bzz", "--out", str(tmp_path),
+         "--update", "1:a.bzz", "--update", "2:b.bzz"],
+    )  # fmt: skip
+    assert result.exit_code == 1, result.output
+    assert "error: --update given 2 times: sitl sends one update per run" in result.stderr
+    for update, message in (("1:x.bzz:3", "--update at robot 3: robots are 1..2"),
+                            ("soon:x.bzz", "expected T:NEW.bzz[:ROBOT]")):  # fmt: skip
+        result = CliRunner().invoke(
+            app,
+            ["sitl", "--robots", "2", "--script", "task_allocation.bzz", "--out",
+             str(tmp_path), "--update", update],
+        )  # fmt: skip
+        assert result.exit_code in (1, 2) and message in result.stderr, result.output
+        assert "Traceback" not in result.output

@@ -14,7 +14,6 @@ from fieldkit.cli.options import (
     CommandOption,
     HomeOption,
     SetOption,
-    UpdateAt,
     UpdateOption,
     parse_commands,
     parse_home,
@@ -22,6 +21,7 @@ from fieldkit.cli.options import (
     parse_updates,
 )
 from fieldkit.cli.output import count_states, out_dir, progress_bar, write_json, wrote
+from fieldkit.cli.updates import release_for, update_outcome
 
 if TYPE_CHECKING:
     from contextlib import AbstractContextManager
@@ -29,7 +29,6 @@ if TYPE_CHECKING:
     from dask.distributed import Client
 
     from fieldkit.sim.experiments import Plan
-    from fieldkit.sim.updates import SimUpdate
 
 app = typer.Typer(
     help="Simulate a swarm: many robots, each running the script, over an imperfect radio.",
@@ -81,13 +80,16 @@ def run_cmd(
         Simulation,
         default_spacing,
     )
+    from fieldkit.sim.updates import SimUpdate
 
     commands = parse_commands(command)
     globals_ = parse_sets(set_)
     lat, lon = parse_home(home)
     updates = parse_updates(update)
     dirs = [str(d) for d in include or []]
-    sim_updates = [_release_for(u, dirs, profile) for u in updates]
+    sim_updates = [
+        SimUpdate(u.t, release_for(u, dirs, profile), u.robot, u.script.name) for u in updates
+    ]
     try:
         config = SimConfig(
             script=resources.find_script(script),
@@ -145,25 +147,6 @@ def run_cmd(
         raise fail(f"{who} after a script error: robot {first['robot']}: {first['error']}")
 
 
-def _release_for(u: UpdateAt, include_dirs: list[str], profile: str) -> SimUpdate:
-    """An `--update`'s new version, compiled and passed through its trial as `fieldkit
-    update` does (a version that fails either is never sent: exit 1, saying why)."""
-    from fieldkit.errors import FieldkitError
-    from fieldkit.sim.trial import trial
-    from fieldkit.sim.updates import SimUpdate
-    from fieldkit.update.pipeline import build
-
-    try:
-        script = resources.find_script(u.script)
-        release = build(script, include_dirs, test=lambda p: trial(p, [profile]))
-    except FieldkitError as e:
-        raise fail(f"--update {u.t:g}:{u.script}: {e}") from None
-    typer.echo(
-        f"update: {u.script} compiled and passed its trial; robot {u.robot} gets it at {u.t:g} s"
-    )
-    return SimUpdate(u.t, release, u.robot, u.script.name)
-
-
 def _run_line(summary: dict[str, object], out: Path) -> str:
     """`sim run`'s last line: what ran, how it ended, and where the results are."""
     states = cast(dict[str, str | None], summary["final_states"])
@@ -177,15 +160,7 @@ def _run_line(summary: dict[str, object], out: Path) -> str:
     ]
     update = cast(dict[str, object] | None, summary.get("update"))
     if update is not None:
-        v = update["version"]
-        if update["rolled_back"]:
-            figures.append(f"update to version {v} rolled back ({update['reason']})")
-        elif update["all_switched_s"] is not None:
-            figures.append(
-                f"update to version {v}: every robot switched by {update['all_switched_s']} s"
-            )
-        else:
-            figures.append(f"update to version {v}: not every robot switched")
+        figures.append(update_outcome(update))
     return f"sim run: {'; '.join(figures)}; results in {out}"
 
 

@@ -13,11 +13,14 @@ from fieldkit.cli.options import (
     CommandOption,
     HomeOption,
     SetOption,
+    UpdateOption,
     parse_commands,
     parse_home,
     parse_sets,
+    parse_updates,
 )
 from fieldkit.cli.output import count_states, out_dir, progress_bar, wrote
+from fieldkit.cli.updates import release_for, split_versions, update_outcome
 
 
 def sitl_cmd(
@@ -42,16 +45,29 @@ def sitl_cmd(
     ] = 0,
     home: HomeOption = None,
     set_: SetOption = None,
+    update: UpdateOption = None,
 ) -> None:
     """Run SCRIPT on N real nodes against simulated autopilots, over a simulated radio."""
     import bvm
     from bvm.errors import BuzzCompileError
+    from fieldkit.errors import FieldkitError
     from fieldkit.robot.profiles import ProfileError, load_profile
-    from fieldkit.sitl import SitlConfig, run
+    from fieldkit.sitl import SitlConfig, SitlUpdate, run
 
     commands = parse_commands(command)  # first: a command line that does not parse is exit 2
     sets = parse_sets(set_)
     home_ll = parse_home(home)
+    updates = parse_updates(update)
+    if len(updates) > 1:
+        raise fail(
+            f"--update given {len(updates)} times: sitl sends one update per run\n"
+            "hint: `fieldkit sim run` takes several"
+        )
+    for u in updates:
+        if not 1 <= u.robot <= robots:
+            raise fail(f"--update at robot {u.robot}: robots are 1..{robots}")
+        if u.t >= seconds:
+            raise fail(f"--update at {u.t:g} s: the run is {seconds:g} s long (see --seconds)")
     for text, c in zip(command or [], commands, strict=True):
         if not 1 <= c.robot <= robots:
             raise fail(f"--command {text!r}: robots are 1..{robots}")
@@ -76,6 +92,9 @@ def sitl_cmd(
             bvm.compile_file(script, include_dirs=dirs)
         except BuzzCompileError as e:
             raise fail(e) from None
+    sitl_update = None
+    for u in updates:  # compiled and tried before any node starts: a bad one is never sent
+        sitl_update = SitlUpdate(u.t, release_for(u, dirs, profile), u.robot, u.script.name)
     out_dir(out)  # an --out that is a file fails here, with `error:`
     cfg = SitlConfig(
         script=script.resolve(),
@@ -89,11 +108,12 @@ def sitl_cmd(
         include_dirs=dirs,
         home=home_ll,
         sets=sets,
+        update=sitl_update,
     )
     with progress_bar(f"SITL: {robots} robots", round(seconds)) as advance:
         try:
             summary = run(cfg, progress=lambda done, total: advance(round(done), round(total)))
-        except OSError as e:  # no pty, no process, a result that cannot be written
+        except (OSError, FieldkitError) as e:  # no pty, no process, keys, an unwritable result
             raise fail(e) from None
     for name in ("summary.json", "log.txt", "trajectories.csv", "plot.png"):
         wrote(out / name)
@@ -113,6 +133,13 @@ def sitl_cmd(
         problems.append(
             f"{_robots(failed)} ended in {verb} failsafe after a script error: "
             f"robot {first['robot']}: {first['error']}"
+        )
+    finished = [k for k in summary["script_versions"] if int(k) not in missing]
+    split = split_versions(summary["script_versions"], finished)
+    if split:
+        problems.append(
+            f"the swarm ended split between versions {', '.join(split)} "
+            "(script_versions in summary.json)"
         )
     if problems:
         raise fail("; ".join(problems))
@@ -137,4 +164,6 @@ def _sitl_line(summary: dict[str, Any], out: Path) -> str:
         f"max {max(sent, default=0)}",
         f"relay {relay.get('frames', 0)} frames, {relay.get('dropped', 0)} dropped",
     ]
+    if summary.get("update") is not None:
+        figures.append(update_outcome(summary["update"]))
     return f"sitl: {'; '.join(figures)}; results in {out}"

@@ -105,6 +105,21 @@ class Node:
             from fieldkit.node.updates import node_updater
 
             self.updater = node_updater(self.runtime, store, keys, self.out, seed=seed)
+            self._room_for_updates(radio)
+
+    def _room_for_updates(self, radio: RadioLink | None) -> None:
+        """Let an XBee carry a tick's update frame next to its bundle.
+
+        XbeeMav paces a radio at one frame per 100 ms: one bundle a tick at 10 Hz, nothing
+        more. An update frame is a packet of its own, so at that pace the queue grows by a
+        frame a tick and drops the oldest: half the bundles and update frames lost, the rest
+        a second late (seen in SITL: no patch ever got through). Two frames a tick fit.
+        """
+        from fieldkit.radio.xbee_serial import XBeeRadio
+
+        if isinstance(radio, XBeeRadio):
+            engine = radio.engine
+            engine.pace(min(engine.base_interframe_s, self.period / 2))
 
     def _script_log(self, text: str) -> None:
         self.out(text.removeprefix(self._script_tag))
@@ -214,6 +229,8 @@ class Node:
             "update": {
                 "version": agent.version,
                 "bad_versions": sorted(agent.bad),
+                # Why, where this robot judged it (a version heard of as bad is left out).
+                "judged_bad": {str(v): agent.bad[v] for v in sorted(agent.judged)},
                 "update_bytes_sent": agent.bytes_sent,
                 "counters": dict(sorted(agent.counters.items())),
                 "actions": [f"{t}: {type(a).__name__} {a.version}" for t, a in updater.actions],

@@ -238,6 +238,13 @@ class XbeeMav:
 
     # ------------------------------------------------------------------ sending
 
+    def pace(self, interframe_s: float) -> None:
+        """From now on, one frame per `interframe_s` on average (the adaptation after large
+        packets keeps within [1/2, 2] times it); ValueError if negative."""
+        if interframe_s < 0:
+            raise ValueError("interframe_s must be >= 0")
+        self.base_interframe_s = self.interframe_s = float(interframe_s)
+
     def submit(self, data: bytes, msgid: int, sysid: int | None = None) -> None:
         """Queue one payload (whole big-endian words) for broadcast; ValueError if it cannot go.
 

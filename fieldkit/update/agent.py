@@ -153,7 +153,11 @@ class _Transfer:
     total: int
     base: bytes  # SHORT hash of the version it applies to
     chunks: dict[int, bytes] = field(default_factory=dict)
-    offered_at: int = -1  # the last tick a neighbour offered it (pulling) or we did (serving)
+    offered_at: int = -1  # the last tick a neighbour offered it (while pulling it)
+    # The last tick we offered it (serving): kept apart from `offered_at`, or a neighbour's
+    # STATUS asking for an offer would also stop our own WANTs (a pull stalled for good on
+    # a paced radio, where chunks come slower than the neighbours' STATUS frames).
+    served_at: int = -1
     asked: dict[int, int] = field(default_factory=dict)  # chunk -> tick a neighbour asked
 
     @property
@@ -229,6 +233,9 @@ class UpdateAgent:
         # Digests that failed verification: never pulled again (the newest REFUSED_KEPT).
         self.refused: dict[bytes, None] = {}
         self.verdicts: dict[int, tuple[Reason, int]] = {}  # bad version -> reason, until tick
+        # The bad versions this robot judged itself (its script error, its barrier's timeout,
+        # an order given to it), not heard of: its `bad` text is the first-hand reason.
+        self.judged: set[int] = set()
         self.counters: Counter[str] = Counter()
         self.events: list[str] = []  # what happened, for the host's log (host empties it)
         self.verified: list[tuple[int, bytes]] = []  # patches that checked out (host empties it)
@@ -292,7 +299,7 @@ class UpdateAgent:
         # verdict says why.
         for r in frame.records:
             if isinstance(r, pk.Verdict):
-                self._learn_bad(r.version, r.reason, f"heard from robot {sender}")
+                self._learn_bad(r.version, r.reason, f"heard from robot {sender}", heard=True)
         for r in frame.records:
             if isinstance(r, pk.Status):
                 self._on_status(sender, r)
@@ -321,7 +328,7 @@ class UpdateAgent:
         self._note(sender, s.heartbeat, s.phase, entry)
         self.peers[sender].running = s.running
         if s.bad and s.bad not in self.bad:
-            self._learn_bad(s.bad, None, f"robot {sender} says it was rolled back")
+            self._learn_bad(s.bad, None, f"robot {sender} says it was rolled back", heard=True)
         if s.phase is not Phase.OPERATOR and s.phase is not Phase.GRACE:
             self._offer_to(s)
         if s.phase is not Phase.RUNNING or s.target:
@@ -331,7 +338,7 @@ class UpdateAgent:
         """A neighbour runs `s.running`: note every patch we hold that it could use."""
         for t in self.transfers.values():
             if t.base == s.running and t.version > s.version and t.version not in self.bad:
-                t.offered_at = -1  # offer it at the next chance (the neighbour needs it)
+                t.served_at = -1  # offer it at the next chance (the neighbour needs it)
 
     def _wants(self, version: int, base: bytes) -> bool:
         """Whether this robot should pull a patch to `version` built on `base`."""
@@ -432,7 +439,9 @@ class UpdateAgent:
         if len(self.refused) > REFUSED_KEPT:
             del self.refused[next(iter(self.refused))]
 
-    def _learn_bad(self, version: int, reason: Reason | None, detail: str) -> None:
+    def _learn_bad(
+        self, version: int, reason: Reason | None, detail: str, *, heard: bool = False
+    ) -> None:
         """Version `version` is bad; a verdict with a reason is passed on for a while. A
         version that could never be accepted (past the fast-forward bound) is ignored: the
         list stays bounded whatever a sender claims."""
@@ -440,6 +449,8 @@ class UpdateAgent:
             return
         if version > max(self.version, self.highest) + MAX_VERSION_STEP:
             return
+        if not heard:
+            self.judged.add(version)
         if reason is None:
             self.bad[version] = detail
         else:
@@ -646,12 +657,12 @@ class UpdateAgent:
         for t in self.transfers.values():
             if t.version in self.bad or not t.chunks:
                 continue
-            if t.offered_at >= 0 and self.now - t.offered_at < self.config.offer_every:
+            if t.served_at >= 0 and self.now - t.served_at < self.config.offer_every:
                 continue
             if not self._needed(t):
                 continue
             if add(pk.Offer(t.digest, t.version, t.total, t.base), pk.OFFER_BYTES):
-                t.offered_at = self.now
+                t.served_at = self.now
             return
 
     def _needed(self, t: _Transfer) -> bool:

@@ -182,7 +182,8 @@ def test_a_barrier_that_never_passes_times_out_and_nobody_switches() -> None:
     swarm.run_until(lambda: all(1 in a.bad for a in heard), 3000)
     assert all(a.version == 0 for a in swarm.agents.values())
     assert not any(isinstance(a, Switch) for _, _, a in swarm.actions)
-    assert "barrier timeout" in swarm.agents[1].bad[1]
+    # Whichever timed out first says why; the others may only have heard that it did.
+    assert any("barrier timeout" in a.bad[1] for a in heard)
 
 
 def test_a_robot_that_dies_mid_update_does_not_block_the_rest() -> None:
