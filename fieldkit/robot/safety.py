@@ -102,13 +102,11 @@ class Supervisor:
         self._hold_sent = False
         self.queue.clear()
         self.target = None
-        self.events.append(f"standby ({reason}): hold")
+        # No event: a standby is routine (its host logs why), not a warning for every robot.
 
     def resume(self) -> None:
         """End a standby: the script's commands are obeyed again."""
-        if self.standing_by is not None:
-            self.standing_by = None
-            self.events.append("standby over: script resumed")
+        self.standing_by = None
 
     def script_restarted(self) -> None:
         """A new program replaced the one that failed (an update or its rollback): a

@@ -87,8 +87,12 @@ class RobotUpdater:
         if isinstance(action, Standby | Resume):
             if isinstance(action, Standby):
                 runtime.stand_by(f"update to version {action.version}: waiting for the swarm")
+                self.agent.events.append(
+                    f"standing by for version {action.version}: holding until the swarm agrees"
+                )
             else:
                 runtime.resume()
+                self.agent.events.append(f"version {action.version} abandoned: script resumed")
             if self.on_change is not None:
                 self.on_change(action)
             return

@@ -170,7 +170,7 @@ def node_argv(
 POINTS = [
     ("pulling version 1", {0, 1}),
     (r"version 1 \(\w+\) received and verified", {0, 1}),
-    ("standby .update to version 1", {0, 1}),
+    ("standing by for version 1", {0, 1}),
     ("switched to version 1", {1}),  # committed before the line is written
     ("rolled back from version 1 to 0", {0}),
 ]
