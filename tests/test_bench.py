@@ -1,19 +1,53 @@
-"""The scale bench still runs end to end (its figures are measured by hand, not here)."""
+"""The benches still run end to end (their figures are measured by hand, not here)."""
 
 from __future__ import annotations
 
 import importlib.util
+import json
+import sys
 from pathlib import Path
+from types import ModuleType
 
-BENCH = Path(__file__).resolve().parent.parent / "bench" / "sim_scale.py"
+BENCH = Path(__file__).resolve().parent.parent / "bench"
+
+
+def load(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    sys.modules[name] = bench  # dataclasses look their module up there
+    spec.loader.exec_module(bench)
+    return bench
 
 
 def test_scale_bench_measures_a_deploying_swarm() -> None:
-    spec = importlib.util.spec_from_file_location("sim_scale", BENCH)
-    assert spec is not None and spec.loader is not None
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load("sim_scale")
     rate, whole, gossip_s, states = bench.ticks_per_second(16, 1.0)
     assert states == {"DEPLOY": 16}  # every robot covering when measured
     assert rate > 0 and whole > 0
     assert bench.SETTLE_S <= gossip_s <= bench.MAX_GOSSIP_S
+
+
+def test_ota_bench_layouts_have_the_hops_it_reports() -> None:
+    bench = load("ota_spread")
+    # 10 m apart, 45 m of range: 4 robots further per hop.
+    assert [bench.layout_for("line", n, 0).diameter for n in (10, 50, 200)] == [3, 13, 50]
+    rgg = bench.layout_for("rgg", 30, 0)
+    assert len(rgg.positions) == 30
+    hops = bench.hops_from(rgg.positions, 1)
+    assert len(hops) == 30 and max(hops.values()) == rgg.from_source <= rgg.diameter
+
+
+def test_ota_bench_updates_a_small_swarm_and_writes_its_files(tmp_path: Path) -> None:
+    bench = load("ota_spread")
+    bench.main(
+        ["--sizes", "5", "--drops", "0.5", "--seeds", "1", "--out", str(tmp_path), "--no-wall"]
+    )
+    s = json.loads((tmp_path / "summary.json").read_text())
+    assert [(c["topology"], c["robots"]) for c in s["cells"]] == [("line", 5), ("rgg", 5)]
+    for run in s["runs"]:
+        assert run["switch_s"] is not None and run["switch_s"] > 0
+        assert run["on_new_version"] == 5 and not run["split"] and not run["rolled_back"]
+        assert run["spread_update_bytes"] > run["patch_bytes"]
+        assert "wall_s" not in run
+    assert (tmp_path / "plot.png").stat().st_size > 10_000
