@@ -15,12 +15,11 @@ import re
 import signal
 import subprocess
 import sys
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from rigs import RIG_HOME
+from rigs import pty_vehicle
 from typer.testing import CliRunner
 
 from fieldkit.cli import app
@@ -28,7 +27,6 @@ from fieldkit.node.log import NodeLog, wall_stamp
 from fieldkit.radio.xbee import FrameReader
 from fieldkit.robot.profiles import load_profile
 from fieldkit.vehicle.pty import PtyPair, open_pty
-from fieldkit.vehicle.sim.vehicle import SimVehicle
 
 runner = CliRunner()
 
@@ -46,16 +44,8 @@ function step() { if (flight.rc_cmd == 22) log("rc 22") }
 @pytest.fixture
 def vehicle() -> Iterator[str]:
     """The solo's simulated ArduPilot on a pty, GPS fixed, in real time: the pty's path."""
-    pty = open_pty()
-    sim = SimVehicle(load_profile("solo"), pty.master, home=RIG_HOME, gps_fix_delay_s=0.0)
-    stop = threading.Event()
-    thread = threading.Thread(target=sim.run, args=(50.0, stop), daemon=True)
-    thread.start()
-    yield pty.slave_path
-    stop.set()
-    thread.join()
-    sim.close()
-    pty.close()
+    with pty_vehicle() as path:
+        yield path
 
 
 @pytest.fixture

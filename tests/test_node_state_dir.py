@@ -9,21 +9,17 @@ where no autopilot answers (a failure after `--connect-timeout`, never a pass th
 from __future__ import annotations
 
 import re
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from rigs import RIG_HOME
+from rigs import pty_vehicle
 from typer.testing import CliRunner
 
 import bvm
 from fieldkit.cli import app
-from fieldkit.robot.profiles import load_profile
 from fieldkit.update.release import Release
 from fieldkit.update.store import VersionStore
-from fieldkit.vehicle.pty import open_pty
-from fieldkit.vehicle.sim.vehicle import SimVehicle
 
 runner = CliRunner()
 
@@ -37,16 +33,8 @@ NOWHERE = ("--autopilot", "udpin:127.0.0.1:0", "--connect-timeout", "0.2")
 @pytest.fixture
 def vehicle() -> Iterator[str]:
     """The solo's simulated ArduPilot on a pty, GPS fixed, in real time: the pty's path."""
-    pty = open_pty()
-    sim = SimVehicle(load_profile("solo"), pty.master, home=RIG_HOME, gps_fix_delay_s=0.0)
-    stop = threading.Event()
-    thread = threading.Thread(target=sim.run, args=(50.0, stop), daemon=True)
-    thread.start()
-    yield pty.slave_path
-    stop.set()
-    thread.join()
-    sim.close()
-    pty.close()
+    with pty_vehicle() as path:
+        yield path
 
 
 def node(*args: str | Path) -> list[str]:

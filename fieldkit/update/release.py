@@ -141,7 +141,12 @@ def write_atomic(path: Path, data: bytes) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
-    fd = os.open(path.parent, os.O_RDONLY)
+    fsync_dir(path.parent)
+
+
+def fsync_dir(path: Path) -> None:
+    """Make a directory's entries (a rename, a new file) survive a power cut."""
+    fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
     finally:
@@ -153,6 +158,7 @@ __all__ = [
     "Release",
     "ReleaseError",
     "SIDECARS",
+    "fsync_dir",
     "VERSION_SUFFIX",
     "read_version",
     "write_version",

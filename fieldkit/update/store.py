@@ -38,6 +38,7 @@ from fieldkit.update.release import (
     SIDECARS,
     Release,
     ReleaseError,
+    fsync_dir,
     sha256_hex,
     write_atomic,
 )
@@ -144,7 +145,7 @@ class VersionStore:
         try:
             for d in (self.releases, self.patches_dir):
                 d.mkdir(parents=True, exist_ok=True)
-            _fsync_dir(self.root)
+            fsync_dir(self.root)
         except OSError as e:
             raise StoreError(
                 f"{self.root}: cannot create the state directory: {e.strerror or e}"
@@ -374,7 +375,7 @@ class VersionStore:
             finally:
                 os.close(fd)
             if new:
-                _fsync_dir(self.root)
+                fsync_dir(self.root)
         except OSError as e:
             raise StoreError(f"{self.history_path}: cannot append: {e.strerror or e}") from None
 
@@ -393,7 +394,7 @@ class VersionStore:
                         p.unlink()
                         removed += 1
                 if removed:
-                    _fsync_dir(d)
+                    fsync_dir(d)
             if removed:
                 self.notes.append(
                     f"{self.root}: removed {removed} file(s) a crash left half-written"
@@ -520,15 +521,6 @@ def _same(a: Committed | None, b: Committed) -> bool:
     return a is not None and (a.version, a.hash, a.time, a.event) == (
         b.version, b.hash, b.time, b.event,
     )  # fmt: skip
-
-
-def _fsync_dir(path: Path) -> None:
-    """Make a directory's entries (a rename, a new file) survive a power cut."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 __all__ = [

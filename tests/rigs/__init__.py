@@ -10,8 +10,10 @@ same scenario gives the same bytes through either.
 
 from __future__ import annotations
 
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from fieldkit.robot.profiles import Profile, load_profile
@@ -188,3 +190,21 @@ class MemoryRig(_SteppedRig):
         cmd = self.link.request_streams(rate_hz)
         assert self.wait(lambda: cmd.done, timeout_s) and cmd.ok, cmd
         self.tick()
+
+
+@contextmanager
+def pty_vehicle(home: tuple[float, float] = RIG_HOME, profile: str = "solo") -> Iterator[str]:
+    """A simulated ArduPilot on a pty, GPS fixed, stepped in real time by a thread (as
+    `fieldkit vehicle-sim` runs it): yields the pty's path, for a `fieldkit node` to open."""
+    pty = open_pty()
+    sim = SimVehicle(load_profile(profile), pty.master, home=home, gps_fix_delay_s=0.0)
+    stop = threading.Event()
+    thread = threading.Thread(target=sim.run, args=(50.0, stop), daemon=True)
+    thread.start()
+    try:
+        yield pty.slave_path
+    finally:
+        stop.set()
+        thread.join()
+        sim.close()
+        pty.close()

@@ -20,23 +20,19 @@ import socket
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from rigs import pty_vehicle
 
 import bvm
 from fieldkit.radio.udp import UdpRadio
-from fieldkit.robot.profiles import load_profile
 from fieldkit.update.keys import init_keys, load_robot_keys, load_signing_key
 from fieldkit.update.operator import GROUND_ID, OperatorSession
 from fieldkit.update.patch import make_update
 from fieldkit.update.release import Release
 from fieldkit.update.store import VersionStore
-from fieldkit.vehicle.pty import open_pty
 from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME
-from fieldkit.vehicle.sim.vehicle import SimVehicle
 
 #: A wait this long for a line means the node hangs (a hang guard, not a timing).
 HANG_S = 120.0
@@ -118,23 +114,6 @@ class Ground(threading.Thread):
         self.radio.close()
 
 
-@contextmanager
-def vehicle() -> Iterator[str]:
-    """The solo's simulated ArduPilot on a pty, GPS fixed, in real time: the pty's path."""
-    pty = open_pty()
-    sim = SimVehicle(load_profile("solo"), pty.master, home=DEFAULT_HOME, gps_fix_delay_s=0.0)
-    stop = threading.Event()
-    thread = threading.Thread(target=sim.run, args=(50.0, stop), daemon=True)
-    thread.start()
-    try:
-        yield pty.slave_path
-    finally:
-        stop.set()
-        thread.join()
-        sim.close()
-        pty.close()
-
-
 @pytest.fixture(scope="module")
 def kit(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     """Keys (the robot's copy holds no signing key), version 0's script, the patch to 1."""
@@ -192,7 +171,7 @@ def test_kill_9_during_an_update_restarts_on_a_whole_version(
     ground = Ground(session, ground_port, port)
     ground.start()
     try:
-        with vehicle() as autopilot:
+        with pty_vehicle(DEFAULT_HOME) as autopilot:
             node = NodeProcess(node_argv(state, keys, script, autopilot, port, ground_port))
             try:
                 if point.startswith("rolled back"):

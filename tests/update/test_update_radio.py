@@ -13,18 +13,16 @@ import os
 import random
 import subprocess
 import sys
-import threading
 from collections.abc import Iterator
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
+from rigs import pty_vehicle
 
-from fieldkit.robot.profiles import load_profile
 from fieldkit.update.keys import init_keys
 from fieldkit.update.release import Release
 from fieldkit.update.store import VersionStore
-from fieldkit.vehicle.pty import open_pty
-from fieldkit.vehicle.sim.vehicle import SimVehicle
 
 V0 = 'function init() { log("v0") }\nfunction step() { x = 0 }\n'
 V1 = 'function init() { log("v1 running") }\nfunction step() { x = 1 }\n'
@@ -34,21 +32,8 @@ HANG_GUARD_S = 300
 @pytest.fixture
 def vehicles() -> Iterator[list[str]]:
     """Two simulated ArduPilots on ptys, GPS fixed, in real time: the ptys' paths."""
-    sims, stops, threads, ptys = [], [], [], []
-    for k in range(2):
-        pty = open_pty()
-        home = (45.5017 + k * 1e-5, -73.5673)
-        sim = SimVehicle(load_profile("solo"), pty.master, home=home, gps_fix_delay_s=0.0)
-        stop = threading.Event()
-        thread = threading.Thread(target=sim.run, args=(50.0, stop), daemon=True)
-        thread.start()
-        sims.append(sim), stops.append(stop), threads.append(thread), ptys.append(pty)
-    yield [p.slave_path for p in ptys]
-    for stop, thread, sim, pty in zip(stops, threads, sims, ptys, strict=True):
-        stop.set()
-        thread.join()
-        sim.close()
-        pty.close()
+    with ExitStack() as stack:
+        yield [stack.enter_context(pty_vehicle((45.5017 + k * 1e-5, -73.5673))) for k in range(2)]
 
 
 def fieldkit(*args: object) -> list[str]:
