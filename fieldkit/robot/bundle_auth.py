@@ -38,8 +38,9 @@ to the trailer costs 6 bytes of content, not 8.
 
 `Verifier.verify` takes hostile bytes: it returns the plain bundle bytes (ready for
 `bundle.decode`) or raises `AuthError` with one of `REASONS`, and counts every outcome in
-`counters`. It never raises anything else and parses nothing the tag has not covered, apart
-from the four fields it needs to find the trailer and the sender.
+`counters`. It never raises anything else, and reads nothing before the tag has checked out
+but what it needs to find the trailer, the sender and the key: word 0's type, the bundle's
+word count and robot id, word A's format and key id.
 """
 
 from __future__ import annotations
@@ -121,7 +122,8 @@ class AuthError(FieldkitError, ValueError):
 
 
 class CounterError(FieldkitError):
-    """A counter file that cannot be used, or counters run out: the file, the problem, a hint."""
+    """A counter or floor file that cannot be used, or counters run out: the file, the
+    problem, a hint."""
 
 
 @dataclass(frozen=True, repr=False)
