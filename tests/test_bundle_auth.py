@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from rigs import kill_and_drain
 
 from fieldkit.robot import bundle as B
 from fieldkit.robot import bundle_auth as A
@@ -323,8 +324,7 @@ def test_killed_from_outside_mid_run_no_counter_is_reused(tmp_path: Path) -> Non
         proc = child(path, 10_000, 4)
         assert proc.stdout is not None
         lines = [proc.stdout.readline() for _ in range(n)]
-        proc.send_signal(signal.SIGKILL)
-        rest, _ = proc.communicate(timeout=HANG_S)
+        rest, _ = kill_and_drain(proc, HANG_S)
         now = sent("".join(lines) + rest)
         assert now and all(c > max(everything, default=0) for c in now)
         everything += now

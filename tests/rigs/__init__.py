@@ -10,6 +10,8 @@ same scenario gives the same bytes through either.
 
 from __future__ import annotations
 
+import signal
+import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -208,3 +210,14 @@ def pty_vehicle(home: tuple[float, float] = RIG_HOME, profile: str = "solo") -> 
         thread.join()
         sim.close()
         pty.close()
+
+
+def kill_and_drain(proc: subprocess.Popen[str], timeout: float) -> tuple[str, str]:
+    """SIGKILL `proc` and return the rest of its stdout and stderr. Not `communicate()`:
+    with both streams piped it reads the file descriptors directly, and loses what an
+    earlier `proc.stdout.readline()` had already pulled into the stream's buffer (lines the
+    child printed just before it died)."""
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=timeout)  # dead: both pipes now end
+    assert proc.stdout is not None and proc.stderr is not None
+    return proc.stdout.read(), proc.stderr.read()

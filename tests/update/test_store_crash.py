@@ -20,6 +20,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from rigs import kill_and_drain
+
 from fieldkit.update.store import VersionStore
 
 CHILD = Path(__file__).with_name("store_crash_child.py")
@@ -112,8 +114,7 @@ def test_killed_after_n_lines_the_store_starts_a_whole_version(tmp_path: Path) -
             if not line:
                 break
             lines.append(line.rstrip("\n"))
-        proc.send_signal(signal.SIGKILL)
-        rest, err = proc.communicate(timeout=HANG_S)
+        rest, err = kill_and_drain(proc, HANG_S)
         lines += rest.splitlines()
         assert "Traceback" not in err, err
         if lines[-1] != "end":
