@@ -132,7 +132,8 @@ def update_cmd(
         typer.Option(
             "--base",
             metavar="OLD.bo",
-            help="The release the swarm runs (with its .bdb, .bpos and .version beside it).",
+            help="The release the swarm runs (with its .bdb, .bpos and .version beside it); "
+            "with --radio also the .bzz the robots were started with.",
             show_default=False,
         ),
     ] = None,
@@ -158,7 +159,7 @@ def update_cmd(
         typer.Option(
             "--timeout",
             metavar="S",
-            help="With --radio: how long to wait for every robot to switch.",
+            help="With --radio: how long to wait for every robot to switch (default 600).",
             show_default=False,
         ),
     ] = None,
