@@ -11,12 +11,13 @@ verified, agreed on and switched to (or rolled back) exactly as in the field.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from fieldkit.robot.runtime import RobotRuntime
-from fieldkit.update.agent import AgentConfig, Rollback, Switch, UpdateAgent
+from fieldkit.update.agent import AgentConfig, UpdateAgent
 from fieldkit.update.host import RobotUpdater
 from fieldkit.update.keys import RobotKeys
 from fieldkit.update.packets import frame_key
@@ -89,7 +90,7 @@ class SwarmUpdates:
         header, release = open_update(data, base=base, keys=self.keys, current_version=current)
         return header.version, release
 
-    def attach(self, runtime: RobotRuntime, log: object) -> RobotUpdater:
+    def attach(self, runtime: RobotRuntime, log: Callable[[str], None]) -> RobotUpdater:
         """Give robot `runtime` its update agent (every robot starts on `first`)."""
         agent = UpdateAgent(
             runtime.id,
@@ -100,7 +101,7 @@ class SwarmUpdates:
             seed=self.seed,
             frame_key=self.frame_key,
         )
-        updater = RobotUpdater(runtime, agent, log=log)  # type: ignore[arg-type]
+        updater = RobotUpdater(runtime, agent, log=log)
         self.updaters[runtime.id] = updater
         return updater
 
@@ -151,12 +152,6 @@ class SwarmUpdates:
     def bytes_sent(self) -> int:
         """Update bytes every robot put on the air."""
         return sum(u.agent.bytes_sent for u in self.updaters.values())
-
-    def switched(self) -> int:
-        """Switches and rollbacks carried out, swarm-wide."""
-        return sum(
-            isinstance(a, Switch | Rollback) for u in self.updaters.values() for _, a in u.actions
-        )
 
 
 __all__ = ["SimUpdate", "SwarmUpdates", "UpdateRecord"]

@@ -40,14 +40,13 @@ from dataclasses import dataclass, field
 
 from fieldkit.update import packets as pk
 from fieldkit.update.packets import Phase, Reason
+
+# The patch's own bounds: a robot checks them before it pulls, the verifier again in full.
+from fieldkit.update.patch import MAX_PATCH_BYTES, MAX_VERSION_STEP
 from fieldkit.update.release import Release
 
 _log = logging.getLogger("fieldkit.update")
 
-#: A patch larger than any script's, never pulled (the verifier checks again, in full).
-MAX_PATCH_BYTES = 256 * 1024
-#: A version this far past ours is a fast-forward attack, never pulled (nor verified).
-MAX_VERSION_STEP = 1000
 #: Refused patch digests remembered (the oldest forgotten first).
 REFUSED_KEPT = 256
 

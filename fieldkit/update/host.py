@@ -21,7 +21,7 @@ from collections.abc import Callable
 from fieldkit.robot.runtime import RobotRuntime, ScriptStatus
 from fieldkit.robot.script_api import Sensors
 from fieldkit.update import packets as pk
-from fieldkit.update.agent import Action, Resume, Rollback, Standby, Switch, UpdateAgent
+from fieldkit.update.agent import Action, Resume, Standby, UpdateAgent
 
 
 class RobotUpdater:
@@ -107,8 +107,7 @@ class RobotUpdater:
             runtime.start(program, sensors)
         if self.on_change is not None:
             self.on_change(action)
-        if isinstance(action, Switch | Rollback):
-            self._note_failure()  # an init() that fails is a failure in grace
+        self._note_failure()  # an init() that fails is a failure in grace
 
     def _flush(self) -> None:
         verified = self.agent.verified

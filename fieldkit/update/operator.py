@@ -77,15 +77,6 @@ class OperatorSession:
             rid: RobotView(rid, p.version, p.phase) for rid, p in sorted(self.agent.live().items())
         }
 
-    def swarm_versions(self) -> dict[int, int]:
-        """Robot id -> the version it runs (its entry's version while it stands by is the
-        one it waits for: counted as not yet switched)."""
-        return {
-            rid: v.version
-            for rid, v in self.robots().items()
-            if v.phase in (Phase.RUNNING, Phase.GRACE)
-        }
-
     def running(self) -> dict[int, tuple[int, bytes]]:
         """Robot id -> (version, short hash) of what it runs, for robots heard directly."""
         return {
@@ -93,10 +84,6 @@ class OperatorSession:
             for rid, p in sorted(self.agent.live().items())
             if p.running and p.phase in (Phase.RUNNING, Phase.GRACE)
         }
-
-    def newest(self) -> int:
-        """The newest version a robot runs (0 if none heard)."""
-        return max(self.swarm_versions().values(), default=0)
 
     # ------------------------------------------------------------ orders
 
