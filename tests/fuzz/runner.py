@@ -13,7 +13,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import Any, TypeVar
 
 #: Inputs between two progress lines of a long campaign, and the least seconds between them.
 PROGRESS_INPUTS = 4096
@@ -160,3 +160,51 @@ def main(
     for line in stats.details():
         print(line)
     return summary(stats)
+
+
+def counted_main(
+    argv: list[str] | None,
+    doc: str | None,
+    run: Callable[..., Any],
+    replay: Callable[[str], int],
+    new_stats: Callable[[], Any],
+    *,
+    slice_inputs: int,
+) -> int:
+    """A harness's command line for million-input runs: `--count N` runs exactly N inputs
+    with no time limit, `--seconds S` (60 without `--count`) bounds the time. The campaign
+    runs in slices of `slice_inputs`, each followed by a progress line with the rate; the
+    stats of the slices add up through their `merge`."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--count", "--max-inputs", dest="count", type=int, help="inputs to run")
+    ap.add_argument("--seconds", type=float, help="time budget (default 60 without --count)")
+    ap.add_argument("--seed", default="0")
+    ap.add_argument("--start", type=int, default=0, help="first input index")
+    ap.add_argument("--replay", help="SEED:K -- run one input verbosely")
+    args = ap.parse_args(argv)
+    if args.replay:
+        return replay(args.replay)
+    seconds = args.seconds if args.seconds is not None or args.count else 60.0
+    t0 = time.monotonic()
+    end = None if seconds is None else t0 + seconds
+    total = new_stats()
+    k = args.start
+    while args.count is None or total.inputs < args.count:
+        left = None if end is None else end - time.monotonic()
+        if left is not None and left <= 0:
+            break
+        n = slice_inputs if args.count is None else min(slice_inputs, args.count - total.inputs)
+        part = run(args.seed, seconds=left, max_inputs=n, start=k)
+        total.merge(part)
+        k += part.inputs
+        spent = time.monotonic() - t0
+        print(
+            f"  ... inputs {total.inputs}, failures {total.failures}, "
+            f"{total.inputs / max(spent, 1e-9):.0f} inputs/s",
+            flush=True,
+        )
+    spent = time.monotonic() - t0
+    print(f"seed {args.seed}, {spent:.0f} s, {total.inputs / max(spent, 1e-9):.0f} inputs/s")
+    for line in total.details():
+        print(line)
+    return summary(total)

@@ -36,12 +36,10 @@ Failures are printed with their replay id. The last line is `inputs: N, failures
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import random
 import struct
 import sys
-import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -637,39 +635,7 @@ def replay(spec: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point: --count N runs exactly N inputs (no time limit)."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--count", "--max-inputs", dest="count", type=int, help="inputs to run")
-    ap.add_argument("--seconds", type=float, help="time budget (default 60 without --count)")
-    ap.add_argument("--seed", default="0")
-    ap.add_argument("--start", type=int, default=0, help="first input index")
-    ap.add_argument("--replay", help="SEED:K -- run one input verbosely")
-    args = ap.parse_args(argv)
-    if args.replay:
-        return replay(args.replay)
-    seconds = args.seconds if args.seconds is not None or args.count else 60.0
-    t0 = time.monotonic()
-    end = None if seconds is None else t0 + seconds
-    total = Stats()
-    k = args.start
-    while args.count is None or total.inputs < args.count:
-        left = None if end is None else end - time.monotonic()
-        if left is not None and left <= 0:
-            break
-        n = SLICE if args.count is None else min(SLICE, args.count - total.inputs)
-        part = run(args.seed, seconds=left, max_inputs=n, start=k)
-        total.merge(part)
-        k += part.inputs
-        spent = time.monotonic() - t0
-        print(
-            f"  ... inputs {total.inputs}, failures {total.failures}, "
-            f"{total.inputs / max(spent, 1e-9):.0f} inputs/s",
-            flush=True,
-        )
-    spent = time.monotonic() - t0
-    print(f"seed {args.seed}, {spent:.0f} s, {total.inputs / max(spent, 1e-9):.0f} inputs/s")
-    for line in total.details():
-        print(line)
-    return runner.summary(total)
+    return runner.counted_main(argv, __doc__, run, replay, Stats, slice_inputs=SLICE)
 
 
 if __name__ == "__main__":
