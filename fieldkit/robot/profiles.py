@@ -52,6 +52,8 @@ FAILSAFE_ACTIONS: tuple[str, ...] = ("hold", "land", "rtl", "stop")
 GROUND_FAILSAFE_ACTIONS: tuple[str, ...] = ("stop", "hold")
 """Allowed failsafe actions for a ground robot (it cannot land or fly home)."""
 RADIO_KINDS: tuple[str, ...] = ("xbee", "udp")
+#: `[radio] security`: authenticated bundles or ROSBuzz's plain bytes (docs/security.md).
+SECURITY_MODES: tuple[str, ...] = ("signed", "none")
 """Allowed values of `radio.kind`."""
 ID_SOURCES: tuple[str, ...] = ("config", "hostname", "xbee")
 """Allowed values of `robot_id.source`."""
@@ -159,6 +161,8 @@ class RadioSettings:
     per_step_budget_bytes: int  # Buzz bytes per step, as ROSBuzz (docs/rosbuzz.md#radio-budget)
     # XBee 64-bit serial (16 upper-case hex digits) -> robot id, like XbeeMav's database.xml.
     id_map: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}), hash=False)
+    # "signed" or "none"; None: signed when the robot has keys, none without.
+    security: str | None = None
 
 
 @dataclass(frozen=True)
@@ -447,7 +451,16 @@ _NODE = ("loop_rate_hz",)
 _GEOFENCE = ("polygon", "max_altitude_m")
 _FAILSAFE = ("on_heartbeat_loss", "on_low_battery", "on_script_error", "low_battery_percent")
 _BATTERY = ("full_voltage", "empty_voltage", "endurance_s", "capacity_wh")
-_RADIO = ("kind", "port", "baud", "api_mode", "udp_port", "per_step_budget_bytes", "id_map")
+_RADIO = (
+    "kind",
+    "port",
+    "baud",
+    "api_mode",
+    "udp_port",
+    "per_step_budget_bytes",
+    "id_map",
+    "security",
+)
 _ROBOT_ID = ("source", "value")
 
 _POSITIVE = _num(g=0.0)
@@ -704,6 +717,7 @@ def _radio(c: _Checker, t: dict[str, Any] | None) -> RadioSettings | None:
     udp_port = c.get(t, "radio.udp_port", _PORT, 24580)
     budget = c.get(t, "radio.per_step_budget_bytes", _whole(1, 1 << 20), 190)
     id_map = _id_map(c, t.get("id_map", {}))
+    security = c.get(t, "radio.security", _choice(SECURITY_MODES), None)
     if (
         kind is None
         or port is None
@@ -714,7 +728,7 @@ def _radio(c: _Checker, t: dict[str, Any] | None) -> RadioSettings | None:
         or id_map is None
     ):
         return None
-    return RadioSettings(kind, port, baud, api_mode, udp_port, budget, id_map)
+    return RadioSettings(kind, port, baud, api_mode, udp_port, budget, id_map, security)
 
 
 def _id_map(c: _Checker, v: Any) -> Mapping[str, int] | None:

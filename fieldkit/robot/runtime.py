@@ -8,7 +8,8 @@ the radio and the clock. Each tick the data flows one way, and only here:
                 the heard table (any time between two ticks)
     sensors     the host fills a `Sensors` from its vehicle and calls `tick`
     step        process_inbox(), neighbours, the script's globals, step()
-    radio out   drain_outbox() within the bundle budget, encoded as one ROSBuzz bundle
+    radio out   drain_outbox() within the bundle budget, encoded as one ROSBuzz bundle,
+                sealed if the robot's `security` is signed
     actuators   the script's commands through the supervisor: at most one `Order`
 
 `tick` returns the bundle to broadcast and the order for the vehicle; the host sends the
@@ -36,6 +37,8 @@ from bvm.errors import BuzzError
 from fieldkit.robot import bundle as wirebundle
 from fieldkit.robot import geo
 from fieldkit.robot import neighbors as nb
+from fieldkit.robot.bundle_auth import CounterError
+from fieldkit.robot.link_security import LinkSecurity
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.safety import Order, Supervisor
@@ -103,13 +106,16 @@ class RobotRuntime:
         max_seconds: float | None = None,
         graph_loader: Callable[[str], bvm.Table] | None = None,
         translate_ahead: bool = False,
+        security: LinkSecurity | None = None,
     ) -> None:
         """`seed` seeds the VM's and the script API's generators (each robot its own);
         `max_ticks` / `max_seconds` bound one step of a runaway script (instructions, for
         a reproducible simulator; wall time, for a node that must keep its loop);
         `translate_ahead` translates the whole script at start (`bvm.VM.prepare`), so that
         no tick compiles: a node's choice (its ticks have deadlines), not the simulator's
-        (translations specialized on first calls run a big swarm faster)."""
+        (translations specialized on first calls run a big swarm faster); `security` seals
+        the bundles sent and checks those heard (None: plain bytes, as `none` without its
+        counters)."""
         self.id = robot_id
         self.profile = profile
         self.frame = frame
@@ -119,18 +125,22 @@ class RobotRuntime:
         self.max_seconds = max_seconds
         self.graph_loader = graph_loader
         self.translate_ahead = translate_ahead
+        self.security = security
         self.supervisor = Supervisor(profile, frame)
         self.heard: nb.HeardTable = {}
         self.timeout = nb.timeout_ticks(profile.node.loop_rate_hz)
         # The Buzz bytes a bundle may carry: the profile's budget (header included, as
         # ROSBuzz counts its 190 bytes), never more than a bundle holds.
-        budget = min(profile.radio.per_step_budget_bytes, wirebundle.MAX_MSG_SIZE)
+        # A sealed bundle gives one word to its trailer (docs/security.md#the-byte-budget).
+        limit = wirebundle.MAX_MSG_SIZE if security is None else security.max_content
+        budget = min(profile.radio.per_step_budget_bytes, limit)
         self.budget = budget - wirebundle.BUNDLE_HEADER
         self.ticks = 0
         self.status = ScriptStatus.IDLE
         self.error: str | None = None
         self.state: str | None = None  # the script's BVMSTATE after its last step
-        self.counters: Counter[str] = Counter()  # host-side: bundle_errors, own_echoes
+        # host-side: bundle_errors, own_echoes, bundles_heard, unsent_bundles
+        self.counters: Counter[str] = Counter()
         self.event_counts: Counter[str] = Counter()
         self.observer: Callable[[TickRecord], None] | None = None
         self.globals: dict[str, object] = {}  # the operator's values, set again at a switch
@@ -248,7 +258,14 @@ class RobotRuntime:
 
     def receive_bundle(self, data: bytes, where: tuple[float, float] | None = None) -> None:
         """A bundle's bytes off the radio; the sender's position is the bundle's GPS unless
-        the host knows better (`where`: east, north). A bad bundle costs a counter."""
+        the host knows better (`where`: east, north). A bad bundle costs a counter; with
+        `security`, nothing it drops (unsigned, forged, replayed) is decoded at all."""
+        security = self.security
+        if security is not None:
+            opened = security.open(data)
+            if opened is None:
+                return
+            data = opened
         try:
             b = wirebundle.decode(data)
         except wirebundle.BundleError as e:
@@ -258,6 +275,7 @@ class RobotRuntime:
         if b.robot == self.id:
             self.counters["own_echoes"] += 1  # our own, echoed back by a mesh
             return
+        self.counters["bundles_heard"] += 1
         if where is None:
             east, north, _ = self.frame.from_gps(b.lat, b.lon)
         else:
@@ -311,6 +329,8 @@ class RobotRuntime:
         bundle = wirebundle.encode_fields(
             self.id, messages, sensors.lat, sensors.lon, sensors.alt, self.ticks, time_ns
         )
+        if self.security is not None and self.security.signed:
+            bundle = self._seal(bundle)
         # actuators
         supervisor = self.supervisor
         supervisor.submit(commands)
@@ -325,6 +345,20 @@ class RobotRuntime:
             )
         self.ticks += 1
         return _new_output(TickOutput, (bundle, messages, order))
+
+    def _seal(self, bundle: bytes) -> bytes:
+        """The bundle sealed; b"" (nothing sent) if no counter can be had: a robot that
+        cannot keep its counter must not reuse one, so it falls silent and says so."""
+        assert self.security is not None
+        try:
+            sealed = self.security.seal(bundle)
+        except CounterError as e:
+            self.counters["unsent_bundles"] += 1
+            n = self.counters["unsent_bundles"]
+            if n == 1 or n % EVENT_LOG_EVERY == 0:
+                _log.error("robot %d: bundle not sent (%d so far): %s", self.id, n, e)
+            return b""
+        return sealed
 
     def _report(self, events: list[str]) -> None:
         counts = self.event_counts
