@@ -32,13 +32,15 @@ from typing import cast
 import bvm
 from fieldkit.errors import ConfigError
 from fieldkit.robot import bundle as wirebundle
-from fieldkit.robot import geo
+from fieldkit.robot import bundle_auth, geo
 from fieldkit.robot import neighbors as nb
+from fieldkit.robot.link_security import MODES, NONE, SIGNED, LinkSecurity
 from fieldkit.robot.profiles import Profile, load_profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.runtime import RobotRuntime
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import ON_GROUND, Sensors
+from fieldkit.sim.attacker import ATTACKS, Attacker
 from fieldkit.sim.radio import LinkModel, RadioModel
 from fieldkit.sim.updates import SimUpdate, SwarmUpdates
 from fieldkit.update.release import Release
@@ -137,6 +139,10 @@ class SimConfig:
     # of ids first_id.. on the ground.
     start: Mapping[int, StartPose] | None = None
     updates: Sequence[SimUpdate] = ()  # over-the-air updates to inject (fieldkit/sim/updates.py)
+    security: str = NONE  # signed: every bundle sealed under `swarm_key` (docs/security.md)
+    swarm_key: bytes | None = None  # the keys' swarm.key, for `signed`
+    attacks: Sequence[str] = ()  # a hostile radio in the swarm's middle (fieldkit/sim/attacker.py)
+    operator_key_id: bytes | None = None  # the operator key's public id (what `command` forges)
 
     def validate(self) -> None:
         """Raise ConfigError for any invalid parameter."""
@@ -172,6 +178,15 @@ class SimConfig:
                 )
             if not 0 <= u.t < self.seconds:
                 raise ConfigError(f"--update at {u.t} s: the run lasts {self.seconds:g} s")
+        if self.security not in MODES:
+            raise ConfigError(
+                f"--security must be one of {', '.join(MODES)}, got {self.security!r}"
+            )
+        if self.security == SIGNED and self.swarm_key is None:
+            raise ConfigError("--security signed needs the swarm key: give --keys DIR")
+        unknown = sorted(set(self.attacks) - set(ATTACKS))
+        if unknown:
+            raise ConfigError(f"--attack {','.join(unknown)}: the kinds are {', '.join(ATTACKS)}")
 
     def _validate_start(self, start: Mapping[int, StartPose]) -> None:
         if len(start) != self.robots:
@@ -258,6 +273,7 @@ class Simulation:
         self._failed: set[int] = set()  # robots whose error is in `errors`
         self.max_bundle = 0
         self.total_bundle = 0
+        self.air_bytes = 0  # bundles' bytes on the air, trailers included
         self.bundles = 0
         self._commands: dict[int, list[RcCommand]] = {}
         for c in config.commands:
@@ -276,6 +292,13 @@ class Simulation:
         # Each robot's radio-in, bound once: a tick delivers thousands of bundles.
         self._hear: dict[int, Callable[[int, nb.Heard, tuple[bytes, ...]], None]] = {}
         self._heard: dict[int, nb.HeardTable] = {}
+        # signed: each robot's replay window, fed every bundle it hears (see `step`).
+        self._admit: dict[int, Callable[[int, int], bool]] = {}
+        key = None
+        if config.security == SIGNED and config.swarm_key is not None:
+            key = bundle_auth.bundle_key(config.swarm_key)
+        #: Hostile frames the robots accepted (a bundle decoded, a command acted on).
+        self.accepted_from_attacker = 0
         rng = random.Random(f"layout:{config.seed}")
         side = max(1, math.ceil(math.sqrt(config.robots)))
         for k, rid in enumerate(config.ids()):
@@ -288,6 +311,12 @@ class Simulation:
                 vehicle = Vehicle.from_profile(self.profile, x=pose.east, y=pose.north)
                 if pose.flying:
                     vehicle.start_flying(pose.alt)
+            security = (
+                None
+                if key is None
+                # A simulated robot never reboots: its counters need no file.
+                else LinkSecurity.signed_with(rid, key, bundle_auth.MemoryCounter())
+            )
             runtime = RobotRuntime(
                 rid,
                 self.profile,
@@ -295,15 +324,40 @@ class Simulation:
                 seed=config.seed,
                 log_sink=self._sink(rid),
                 max_ticks=config.max_ticks_per_step,
+                security=security,
             )
             robot = SimRobot(rid, runtime, vehicle)
             self.robots[rid] = robot
             self._hear[rid] = runtime.hear
             self._heard[rid] = runtime.heard
+            if security is not None:
+                self._admit[rid] = security.admit
             if not runtime.start(self.program, self._sensors(robot), config.globals):
                 self._note_error(robot)
             if self.updates is not None:
                 self.updates.attach(runtime, self._sink(rid))
+        self.attacker = self._attacker(config) if config.attacks else None
+
+    def _attacker(self, config: SimConfig) -> Attacker:
+        """The hostile radio, at the middle of the swarm's start positions."""
+        robots = list(self.robots.values())
+        middle = (
+            sum(r.vehicle.x for r in robots) / len(robots),
+            sum(r.vehicle.y for r in robots) / len(robots),
+            2.0,
+        )
+        taken = set(self.robots)
+        radio_id = next(i for i in range(65535, -1, -1) if i not in taken)
+        return Attacker(
+            config.attacks,
+            seed=config.seed,
+            link=self.radio.model,
+            position=middle,
+            radio_id=radio_id,
+            robot_ids=sorted(taken),
+            origin=(self.frame.lat, self.frame.lon),
+            operator_key_id=config.operator_key_id,
+        )
 
     @staticmethod
     def _link_model(config: SimConfig) -> LinkModel:
@@ -372,10 +426,14 @@ class Simulation:
                     if robot is not None:
                         robot.runtime.receive_bundle(data, (pos[0], pos[1]))
                 continue
-            src, messages = cast(tuple[int, tuple[bytes, ...]], sent)  # what _send noted
+            src, messages, counter = cast(tuple[int, tuple[bytes, ...], int], sent)  # _send's
             # Where the sender was when it sent (its position in the shared local frame,
             # which is its bundle's GPS); one entry shared by every receiver: never modified.
             entry = (pos[0], pos[1], t)
+            if counter:
+                # Sealed: the simulator made the tag with the key every robot holds, so it
+                # would check out; each receiver's replay window still sees the counter.
+                receivers = [r for r in receivers if self._admit[r](src, counter)]
             if messages:
                 for receiver in receivers:
                     hear = self._hear.get(receiver)
@@ -388,8 +446,13 @@ class Simulation:
                     heard = self._heard.get(receiver)
                     if heard is not None:
                         heard[src] = entry
+        if self.attacker is not None:
+            self._hostile_in(t)
         rcs: dict[int, RcCommand] = {c.robot: c for c in self._commands.get(t, ())}
-        self.radio.set_positions({r.id: r.vehicle.position for r in robots.values()})
+        positions = {r.id: r.vehicle.position for r in robots.values()}
+        self.radio.set_positions(positions)
+        if self.attacker is not None:
+            self.attacker.transmit(t, positions)
         # A robot's own vehicle moves only in its turn, after it stepped: so every robot's
         # neighbours can be computed now, for the whole swarm at once.
         neighbors = self._neighbors(t)
@@ -433,11 +496,33 @@ class Simulation:
                 room = self.radio.room(t, robot.id)
                 if room is None or len(frame) <= room:
                     self.radio.broadcast(t, robot.id, frame, note=_UPDATE_FRAME)
+                    if self.attacker is not None:
+                        self.attacker.record(t, frame, robot.vehicle.position)
             if out.order is not None:
                 self._actuate(robot, out.order)
             robot.vehicle.step(TICK_S)
         updates.after_tick(t)
         self.tick += 1
+
+    def _hostile_in(self, t: int) -> None:
+        """The attacker's frames due now, through each receiver's whole radio-in path;
+        counts any that a robot accepted (none should be, when signed)."""
+        assert self.attacker is not None
+        robots = self.robots
+        for _sender, data, _pos, receivers, _note in self.attacker.radio.receptions(t):
+            for receiver in receivers:
+                robot = robots.get(receiver)
+                if robot is None:
+                    continue
+                runtime = robot.runtime
+                # Accepted: past the verifier (signed) or decoded and heard (none).
+                counters = (
+                    runtime.counters if runtime.security is None else runtime.security.counters
+                )
+                key = "bundles_heard" if runtime.security is None else bundle_auth.ACCEPTED
+                before = counters[key]
+                runtime.receive_bundle(data)
+                self.accepted_from_attacker += counters[key] - before
 
     def _receive_update(self, data: bytes, receivers: Sequence[int]) -> None:
         updaters = self.updates.updaters if self.updates is not None else {}
@@ -471,9 +556,14 @@ class Simulation:
             self.max_bundle = size
         self.total_bundle += size
         self.bundles += 1
+        self.air_bytes += len(data)
         # The real bytes travel (and are counted); the note of what they hold spares the
         # receivers parsing them again.
-        self.radio.broadcast(self.tick, robot.id, data, note=(robot.id, messages))
+        security = robot.runtime.security
+        counter = 0 if security is None else security.last_counter
+        self.radio.broadcast(self.tick, robot.id, data, note=(robot.id, messages, counter))
+        if self.attacker is not None:
+            self.attacker.record(self.tick, data, robot.vehicle.position)
 
     @staticmethod
     def _actuate(robot: SimRobot, order: Order) -> None:
@@ -523,19 +613,56 @@ class Simulation:
 
     def summary(self) -> dict[str, object]:
         """The run's figures, as `summary.json` holds them."""
-        return {
-            "robots": self.config.robots,
-            "drop": self.config.drop,
-            "seed": self.config.seed,
-            "seconds_simulated": round(self.tick * TICK_S, 6),
-            "max_bundle_bytes": self.max_bundle,
-            "mean_bundle_bytes": round(self.total_bundle / self.bundles, 3) if self.bundles else 0,
-            "final_states": {str(r.id): r.state for r in self.robots.values()},
-            # Every script error, in time order; those not recovered left their robot in
-            # its failsafe, listed in `in_failsafe`.
-            "errors": list(self.errors),
-            "in_failsafe": self.in_failsafe(),
-        } | self.update_summary()
+        return (
+            {
+                "robots": self.config.robots,
+                "drop": self.config.drop,
+                "seed": self.config.seed,
+                "seconds_simulated": round(self.tick * TICK_S, 6),
+                "max_bundle_bytes": self.max_bundle,
+                "mean_bundle_bytes": round(self.total_bundle / self.bundles, 3)
+                if self.bundles
+                else 0,
+                "mean_bundle_air_bytes": round(self.air_bytes / self.bundles, 3)
+                if self.bundles
+                else 0,
+                "final_states": {str(r.id): r.state for r in self.robots.values()},
+                # Every script error, in time order; those not recovered left their robot in
+                # its failsafe, listed in `in_failsafe`.
+                "errors": list(self.errors),
+                "in_failsafe": self.in_failsafe(),
+            }
+            | self.update_summary()
+            | self.security_summary()
+        )
+
+    def security_summary(self) -> dict[str, object]:
+        """`security`: the mode, what the robots dropped (per reason, every reception
+        counted), and with an attacker what it sent and how much of it was accepted."""
+        rejected: dict[str, int] = {}
+        accepted = 0
+        mixed: set[int] = set()
+        for r in self.robots.values():
+            security = r.runtime.security
+            if security is None:
+                continue
+            for reason, n in security.rejected().items():
+                rejected[reason] = rejected.get(reason, 0) + n
+            accepted += security.counters[bundle_auth.ACCEPTED]
+            mixed.update(security.mixed)
+        out: dict[str, object] = {
+            "mode": self.config.security,
+            "accepted": accepted,
+            "rejected": dict(sorted(rejected.items())),
+            "mixed": sorted(mixed),
+        }
+        if self.attacker is not None:
+            bad = sum(r.runtime.counters["bundle_errors"] for r in self.robots.values())
+            if bad:
+                out["rejected"] = dict(sorted({**rejected, "undecodable": bad}.items()))
+            out["attacker"] = self.attacker.summary()
+            out["accepted_from_attacker"] = self.accepted_from_attacker
+        return {"security": out}
 
     def update_summary(self) -> dict[str, object]:
         """`script_versions` (robot id to the hex SHA-256 of the bytecode it runs) and

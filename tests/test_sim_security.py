@@ -1,0 +1,94 @@
+"""The simulator's radio security: signed swarms, and a hostile radio in their middle."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import pytest
+
+from fieldkit import resources
+from fieldkit.robot import bundle_auth as A
+from fieldkit.sim.attacker import ATTACKS
+from fieldkit.sim.simulator import ConfigError, SimConfig, Simulation
+
+SWARM_KEY = bytes(range(32))
+TASKS = resources.find_script(Path("task_allocation.bzz"))
+
+
+def run(drop: float = 0.0, security: str = "signed", attacks: tuple[str, ...] = ()) -> Simulation:
+    config = SimConfig(
+        script=TASKS,
+        robots=8,
+        drop=drop,
+        seconds=25.0,
+        seed=3,
+        security=security,
+        swarm_key=SWARM_KEY,
+        attacks=attacks,
+    )
+    sim = Simulation(config)
+    sim.run()
+    return sim
+
+
+def outcome(sim: Simulation) -> tuple[object, ...]:
+    """What the swarm did: states, positions, logs, errors."""
+    s = sim.summary()
+    where = {r.id: (r.vehicle.x, r.vehicle.y, r.vehicle.z) for r in sim.robots.values()}
+    return s["final_states"], where, sim.log, s["errors"], sim.radio.delivered
+
+
+@pytest.fixture(autouse=True)
+def _quiet() -> object:
+    # Every forged bundle is logged by each receiver: thousands of lines.
+    logging.disable(logging.WARNING)
+    yield
+    logging.disable(logging.NOTSET)
+
+
+@pytest.mark.parametrize("drop", [0.0, 0.5])
+def test_the_attacker_changes_nothing_in_a_signed_swarm(drop: float) -> None:
+    calm = run(drop)
+    attacked = run(drop, attacks=ATTACKS)
+    assert outcome(attacked) == outcome(calm)
+    sec = attacked.summary()["security"]
+    assert isinstance(sec, dict)
+    assert sec["accepted_from_attacker"] == 0
+    sent = sec["attacker"]["sent"]
+    assert set(sent) == set(ATTACKS) and all(n > 0 for n in sent.values())
+    rejected = sec["rejected"]
+    # Each kind meets the check it was made for.
+    for reason in (A.BAD_TAG, A.TOO_OLD, A.MISSING_TRAILER, A.UNKNOWN_KEY, A.BAD_FORMAT):
+        assert rejected.get(reason, 0) > 0, (reason, rejected)
+    # Honest bundles only are accepted: as many as without the attacker.
+    assert sec["accepted"] == calm.summary()["security"]["accepted"]  # type: ignore[index]
+
+
+def test_without_signatures_the_same_attacker_gets_in() -> None:
+    calm = run(0.0, security="none")
+    attacked = run(0.0, security="none", attacks=ATTACKS)
+    sec = attacked.summary()["security"]
+    assert isinstance(sec, dict) and sec["accepted_from_attacker"] > 0
+    assert outcome(attacked)[:2] != outcome(calm)[:2]  # and the swarm does something else
+
+
+def test_a_signed_bundle_costs_sixteen_bytes_on_the_air() -> None:
+    plain, sealed = run(security="none"), run()
+    assert plain.summary()["final_states"] == sealed.summary()["final_states"]
+    gap = sealed.summary()["mean_bundle_air_bytes"] - plain.summary()["mean_bundle_air_bytes"]  # type: ignore[operator]
+    assert gap == pytest.approx(A.TRAILER_BYTES, abs=0.5)
+
+
+def test_an_attacked_run_is_reproducible() -> None:
+    a, b = run(0.5, attacks=("forge", "flood")), run(0.5, attacks=("forge", "flood"))
+    assert a.summary() == b.summary()
+
+
+def test_the_configuration_is_checked() -> None:
+    with pytest.raises(ConfigError, match="--keys"):
+        Simulation(SimConfig(script=TASKS, robots=2, security="signed"))
+    with pytest.raises(ConfigError, match="--security"):
+        Simulation(SimConfig(script=TASKS, robots=2, security="maybe"))
+    with pytest.raises(ConfigError, match="--attack"):
+        Simulation(SimConfig(script=TASKS, robots=2, attacks=("jam",)))
