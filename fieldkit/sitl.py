@@ -255,6 +255,8 @@ class SitlConfig:
     sets: Mapping[str, int | float | str] = field(default_factory=dict)  # node --set
     extra: list[str] = field(default_factory=list)  # more `fieldkit node` arguments
     update: SitlUpdate | None = None  # an over-the-air update during the run
+    security: str = "none"  # the nodes' --security; signed needs keys (`keys`, or --update's)
+    keys: Path | None = None  # a `fieldkit keys init` directory (else --update makes keys)
 
 
 def _homes(cfg: SitlConfig) -> list[tuple[float, float]]:
@@ -288,6 +290,9 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
             )
         relay = RadioRelay(robots, cfg.drop, cfg.range_m, cfg.seed, cfg.corrupt)
         updating = _Updating(cfg, robots) if cfg.update is not None else None
+        robot_keys = updating.robot_keys if updating is not None else cfg.keys
+        if cfg.security == "signed" and robot_keys is None:
+            raise FieldkitError("sitl --security signed needs keys: give --keys DIR")
         if updating is not None:
             relay.ground = updating.ground
         for r in robots:
@@ -316,8 +321,12 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
                 *(a for d in cfg.include_dirs for a in ("-I", d)),
                 *cfg.extra,
             ]
-            if updating is not None:
-                argv += ["--state-dir", str(r.out / "state"), "--keys", str(updating.robot_keys)]
+            argv += ["--security", cfg.security]
+            if updating is not None or cfg.security == "signed":
+                # Each node's versions and bundle counter, fresh for the run.
+                if updating is None:
+                    shutil.rmtree(r.out / "state", ignore_errors=True)
+                argv += ["--state-dir", str(r.out / "state"), "--keys", str(robot_keys)]
             for name, value in cfg.sets.items():
                 argv += ["--set", f"{name}={value}"]  # the node parses it back the same
             for c in cfg.commands:
@@ -381,7 +390,13 @@ class _Updating:
 
     def __init__(self, cfg: SitlConfig, robots: Sequence[SitlRobot]) -> None:
         import bvm
-        from fieldkit.update.keys import init_keys, load_robot_keys, load_signing_key
+        from fieldkit.update.keys import (
+            OPERATOR_PUB,
+            SWARM_KEY,
+            init_keys,
+            load_robot_keys,
+            load_signing_key,
+        )
 
         assert cfg.update is not None
         self.update = cfg.update
@@ -390,15 +405,16 @@ class _Updating:
         # refused (keys are never overwritten) or run instead of --script.
         for old in (cfg.out / "keys", cfg.out / "robot-keys", *(r.out / "state" for r in robots)):
             shutil.rmtree(old, ignore_errors=True)
-        paths = init_keys(cfg.out / "keys")
+        # The operator's keys (--keys), else a pair of the run's own.
+        keys = cfg.keys if cfg.keys is not None else init_keys(cfg.out / "keys").directory
         # A robot holds the operator's public key and the swarm key, never the signing key.
         self.robot_keys = cfg.out / "robot-keys"
         self.robot_keys.mkdir(mode=0o700, exist_ok=True)
-        for src in (paths.operator_pub, paths.swarm_key):
-            dest = self.robot_keys / src.name
-            dest.write_bytes(src.read_bytes())
+        for name in (OPERATOR_PUB, SWARM_KEY):
+            dest = self.robot_keys / name
+            dest.write_bytes((keys / name).read_bytes())
             dest.chmod(0o600)
-        self.signing_key = load_signing_key(cfg.out / "keys")
+        self.signing_key = load_signing_key(keys)
         self.keys = load_robot_keys(self.robot_keys)
         # What every node seeds its store with from --script: version 0.
         if cfg.script.suffix == ".bo":
@@ -505,6 +521,25 @@ class _Tracker:
         self.next_t = (math.floor(t / SAMPLE_S) + 1) * SAMPLE_S
 
 
+def _security(cfg: SitlConfig, nodes: Mapping[str, Mapping[str, Any]]) -> dict[str, object]:
+    """The nodes' bundle security, added up: accepted, rejected per reason, who is mixed."""
+    rejected: dict[str, int] = {}
+    accepted = 0
+    mixed: set[int] = set()
+    for node in nodes.values():
+        sec = node.get("security") or {}
+        accepted += int(sec.get("accepted", 0))
+        for reason, n in (sec.get("rejected") or {}).items():
+            rejected[reason] = rejected.get(reason, 0) + int(n)
+        mixed.update(int(k) for k in sec.get("mixed") or {})
+    return {
+        "mode": cfg.security,
+        "accepted": accepted,
+        "rejected": dict(sorted(rejected.items())),
+        "mixed": sorted(mixed),
+    }
+
+
 def _summary(
     cfg: SitlConfig, robots: list[SitlRobot], relay: RadioRelay, updating: _Updating | None
 ) -> dict:
@@ -543,6 +578,7 @@ def _summary(
         "errors": errors,
         "script_versions": {k: n.get("script_version") for k, n in nodes.items()},
         "update": updating.summary(nodes) if updating is not None else None,
+        "security": _security(cfg, nodes),
         "nodes": nodes,
     }
     write_json(cfg.out / "summary.json", summary)

@@ -162,6 +162,9 @@ def test_robot_keys_are_loaded_at_start_and_bad_ones_stop_the_node(tmp_path: Pat
     paths = keys.init_keys(kdir)
     (kdir / "operator.key").unlink()  # a robot holds no signing key
     result = runner.invoke(app, node("--script", a, "--keys", kdir, *NOWHERE))
+    # Keys mean signed bundles, whose counter lives in the state directory.
+    assert result.exit_code == 1 and "--state-dir" in errors(result.stderr)[0]
+    result = runner.invoke(app, node("--script", a, "--keys", kdir, "--security", "none", *NOWHERE))
     assert result.exit_code == 1 and "no heartbeat" in errors(result.stderr)[0]  # keys fine
     paths.swarm_key.chmod(0o644)
     result = runner.invoke(app, node("--script", a, "--keys", kdir, *NOWHERE))

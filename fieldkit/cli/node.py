@@ -21,10 +21,14 @@ from fieldkit import resources
 from fieldkit.cli.errors import error_text, fail, usage_error
 from fieldkit.cli.options import (
     CommandOption,
+    KeysOption,
+    SecurityOption,
     SetOption,
     SetValue,
+    load_keys,
     parse_commands,
     parse_sets,
+    security_mode,
 )
 from fieldkit.cli.output import out_dir, write_json
 
@@ -32,6 +36,7 @@ if TYPE_CHECKING:
     from fieldkit.node.log import NodeLog
     from fieldkit.node.node import Node
     from fieldkit.radio.base import RadioLink
+    from fieldkit.robot.link_security import LinkSecurity
     from fieldkit.robot.profiles import Profile
     from fieldkit.robot.rc import RcCommand
     from fieldkit.update.keys import RobotKeys
@@ -149,13 +154,13 @@ def node_cmd(
             help="Keep script versions here: the committed one runs, a reboot included.",
         ),
     ] = None,
-    keys: Annotated[
-        Path | None,
-        typer.Option("--keys", help="The robot's keys for updates (operator.pub, swarm.key)."),
-    ] = None,
+    keys: KeysOption = None,
+    security: SecurityOption = None,
 ) -> None:
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
+    from fieldkit.errors import FieldkitError
     from fieldkit.node.log import NodeLog
+    from fieldkit.node.security import node_security
     from fieldkit.robot.profiles import ProfileError, load_profile
 
     # Everything that can be checked without a device is, before any port is opened.
@@ -181,6 +186,7 @@ def node_cmd(
         script = resources.find_script(script)
     say = NodeLog(rid)
     robot_keys = load_keys(keys) if keys is not None else None
+    mode = security_mode(security, robot_keys is not None, prof.radio.security)
     store: VersionStore | None = None
     if state_dir is None:
         assert script is not None  # checked above
@@ -189,6 +195,11 @@ def node_cmd(
     else:
         store, version, program = open_versions(state_dir, script, includes, say)
         label = f"version {version.version} ({version.hash[:12]}…)"
+    try:
+        link_security = node_security(rid, mode, robot_keys, state_dir, say)
+    except FieldkitError as e:  # no state dir, a damaged counter or floor file
+        raise fail(e) from None
+    say(f"security: {mode}" + ("" if mode == "signed" else " (bundles not authenticated)"))
     if out is not None:
         out_dir(out)  # now, not after an hour's run
     # The radio first: a missing XBee fails at once, not after the wait for the autopilot.
@@ -210,6 +221,7 @@ def node_cmd(
             say=say,
             store=store,
             keys=robot_keys,
+            security=link_security,
         )
     finally:
         if link_radio is not None:
@@ -226,18 +238,6 @@ def load_program(script: Path, includes: list[str]) -> bvm.Program:
         raise fail(e, script) from None
     except OSError as e:
         raise fail(f"{script}: cannot read: {e.strerror or e}") from None
-
-
-def load_keys(directory: Path) -> RobotKeys:
-    """The robot's keys (`--keys`): the operator's public key and the swarm key, or exit 1
-    saying which file is wrong and how to mend it."""
-    from fieldkit.errors import FieldkitError
-    from fieldkit.update.keys import load_robot_keys
-
-    try:
-        return load_robot_keys(directory)
-    except FieldkitError as e:  # KeyFileError: names the file, the problem, a hint
-        raise fail(e) from None
 
 
 def open_versions(
@@ -304,6 +304,7 @@ def _run(
     say: NodeLog,
     store: VersionStore | None,
     keys: RobotKeys | None,
+    security: LinkSecurity,
 ) -> None:
     """Connect to the autopilot, run the loop, stop cleanly; exit 1 if the script is failed."""
     from fieldkit.node.autopilot_port import MavlinkAutopilot
@@ -345,6 +346,7 @@ def _run(
                 globals_=globals_,
                 store=store,
                 keys=keys,
+                security=security,
             )
             with _stop_on_signals(node):
                 node.run(seconds)

@@ -21,6 +21,7 @@ from fieldkit.robot.geo import DEFAULT_HOME
 
 if TYPE_CHECKING:
     from fieldkit.robot.rc import RcCommand
+    from fieldkit.update.keys import RobotKeys
 
 #: `--command T:ROBOT:CODE[:P...]` (repeatable).
 CommandOption = Annotated[
@@ -66,6 +67,68 @@ UpdateOption = Annotated[
         "NEW.bzz, compiled and tested first; it spreads over the radio (repeatable).",
     ),
 ]
+
+
+#: `--security signed|none`.
+SecurityOption = Annotated[
+    str | None,
+    typer.Option(
+        "--security",
+        metavar="signed|none",
+        help="signed: every radio bundle carries a tag under the swarm key and a counter "
+        "(needs --keys); none: ROSBuzz's plain bytes, with a warning. Default: the "
+        "profile's [radio] security, else signed with --keys and none without.",
+        show_default=False,
+    ),
+]
+
+#: `--keys DIR` where it serves the radio (and updates): the robot's keys.
+KeysOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--keys",
+        metavar="DIR",
+        help="The robot's keys (from `fieldkit keys init`: operator.pub, swarm.key): bundles "
+        "are signed with them, updates and operator commands checked.",
+    ),
+]
+
+#: Printed when a run's radio is not authenticated.
+INSECURE = (
+    "warning: security none: radio bundles are not authenticated: anyone in radio range "
+    "can inject, replay or forge them (give --keys DIR to sign; docs/security.md)"
+)
+
+
+def security_mode(given: str | None, has_keys: bool, profile_setting: str | None = None) -> str:
+    """The radio's security mode: `--security`, else the profile's, else signed with keys
+    and none without; signed without keys is exit 1; none is said on stderr."""
+    from fieldkit.robot.link_security import MODES, NONE, SIGNED
+
+    if given is not None and given not in MODES:
+        raise usage_error(f"--security must be signed or none, got {given!r}")
+    mode = given or profile_setting or (SIGNED if has_keys else NONE)
+    if mode == SIGNED and not has_keys:
+        source = "--security signed" if given else 'the profile\'s [radio] security = "signed"'
+        raise fail(
+            f"{source} authenticates bundles with the swarm key: give --keys DIR "
+            f"(made by `fieldkit keys init DIR`), or --security none"
+        )
+    if mode == NONE:
+        typer.echo(INSECURE, err=True)
+    return mode
+
+
+def load_keys(directory: Path) -> RobotKeys:
+    """The robot's keys (`--keys`): the operator's public key and the swarm key, or exit 1
+    saying which file is wrong and how to mend it (missing, another kind, readable by others)."""
+    from fieldkit.errors import FieldkitError
+    from fieldkit.update.keys import load_robot_keys
+
+    try:
+        return load_robot_keys(directory)
+    except FieldkitError as e:  # KeyFileError: names the file, the problem, a hint
+        raise fail(e) from None
 
 
 @dataclass(frozen=True)
@@ -171,6 +234,11 @@ def parse_home(text: str | None) -> tuple[float, float]:
 __all__ = [
     "CommandOption",
     "HomeOption",
+    "INSECURE",
+    "KeysOption",
+    "load_keys",
+    "SecurityOption",
+    "security_mode",
     "SetOption",
     "SetValue",
     "UpdateAt",

@@ -12,12 +12,16 @@ from fieldkit.cli.errors import fail
 from fieldkit.cli.options import (
     CommandOption,
     HomeOption,
+    KeysOption,
+    SecurityOption,
     SetOption,
     UpdateOption,
+    load_keys,
     parse_commands,
     parse_home,
     parse_sets,
     parse_updates,
+    security_mode,
 )
 from fieldkit.cli.output import count_states, out_dir, progress_bar, wrote
 from fieldkit.cli.updates import release_for, split_versions, update_outcome
@@ -46,6 +50,8 @@ def sitl_cmd(
     home: HomeOption = None,
     set_: SetOption = None,
     update: UpdateOption = None,
+    security: SecurityOption = None,
+    keys: KeysOption = None,
 ) -> None:
     """Run SCRIPT on N real nodes against simulated autopilots, over a simulated radio."""
     import bvm
@@ -84,6 +90,10 @@ def sitl_cmd(
         prof = load_profile(profile)
     except (ProfileError, OSError) as e:
         raise fail(e) from None
+    if keys is not None:
+        load_keys(keys)  # a wrong, missing or world-readable key: said now, naming the file
+    # --update makes keys of its own when none are given: such a run has keys too.
+    mode = security_mode(security, keys is not None or bool(updates), prof.radio.security)
     dirs = [str(d) for d in include or []] or [str(script.resolve().parent)]
     if script.suffix != ".bo":
         # Compile once here: a broken script is one `error: path:line:col` line, not N nodes
@@ -109,6 +119,8 @@ def sitl_cmd(
         home=home_ll,
         sets=sets,
         update=sitl_update,
+        security=mode,
+        keys=keys,
     )
     with progress_bar(f"SITL: {robots} robots", round(seconds)) as advance:
         try:

@@ -30,6 +30,8 @@ import bvm
 from fieldkit.node.log import NodeLog
 from fieldkit.radio.base import RadioLink
 from fieldkit.robot import geo
+from fieldkit.robot.bundle_auth import CounterError
+from fieldkit.robot.link_security import LinkSecurity
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.runtime import RobotRuntime, ScriptStatus
@@ -63,12 +65,14 @@ class Node:
         globals_: Mapping[str, object] | None = None,
         store: VersionStore | None = None,
         keys: RobotKeys | None = None,
+        security: LinkSecurity | None = None,
     ) -> None:
         """`commands` are this robot's remote-control codes (times from start); `out` takes
         each line the node logs, unstamped (default: a `NodeLog` on stdout); `seed` seeds
         the script's generators (with the robot id: each robot its own); `globals_` are
         script globals set before `init()` (`--set`); `store` is the `--state-dir` version
-        store `program` came from, `keys` the `--keys` (both None without the options)."""
+        store `program` came from, `keys` the `--keys` (both None without the options);
+        `security` seals and checks the bundles (`node_security`; None: plain bytes)."""
         self.profile = profile
         #: What the update agent works with: the robot's versions and its keys.
         self.store = store
@@ -97,7 +101,9 @@ class Node:
             max_seconds=max(0.5, 5 * self.period),
             # Nor can a first call's translation (50-110 ms of a tick, measured).
             translate_ahead=True,
+            security=security,
         )
+        self.floor_errors = 0
         self.runtime.start(program, sensors_from(vehicle.telemetry(), self.frame), globals_)
         # Over-the-air updates need both the versions (--state-dir) and the keys (--keys).
         self.updater: RobotUpdater | None = None
@@ -151,12 +157,27 @@ class Node:
         # 4. radio out: the bundle, then the update frame if there is one
         frame = updater.after_step() if updater is not None else None
         if self.radio is not None:
-            self.radio.send(out.bundle)
+            if out.bundle:  # b"": no counter could be had (the runtime said why)
+                self.radio.send(out.bundle)
             if frame is not None:
                 self.radio.send(frame)
+        self._save_floors()
         # 5. actuators
         if out.order is not None:
             self.vehicle.execute(out.order, self.frame)
+
+    def _save_floors(self) -> None:
+        """The neighbours' counters to disk, about once a minute (a failed save is logged:
+        it only matters after a reboot, and a full disk must not stop the robot)."""
+        security = self.runtime.security
+        if security is None:
+            return
+        try:
+            security.save_floors()
+        except CounterError as e:
+            self.floor_errors += 1
+            if self.floor_errors == 1 or self.floor_errors % 100 == 0:
+                self.out(f"bundle floors not saved ({self.floor_errors} times): {e}")
 
     # ------------------------------------------------------------ the loop
 
@@ -216,6 +237,7 @@ class Node:
             "errors": [runtime.error] if runtime.error is not None else [],
             "final_state": runtime.state,
             "failsafe": runtime.supervisor.failsafe,
+            "security": None if runtime.security is None else runtime.security.summary(),
         } | self._update_summary()
 
     def _update_summary(self) -> dict[str, object]:
