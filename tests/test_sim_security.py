@@ -6,6 +6,7 @@ import logging
 from pathlib import Path
 
 import pytest
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from fieldkit import resources
 from fieldkit.robot import bundle_auth as A
@@ -13,6 +14,7 @@ from fieldkit.sim.attacker import ATTACKS
 from fieldkit.sim.simulator import ConfigError, SimConfig, Simulation
 
 SWARM_KEY = bytes(range(32))
+OPERATOR = Ed25519PrivateKey.from_private_bytes(b"\x07" * 32)
 TASKS = resources.find_script(Path("task_allocation.bzz"))
 
 
@@ -26,6 +28,7 @@ def run(drop: float = 0.0, security: str = "signed", attacks: tuple[str, ...] = 
         security=security,
         swarm_key=SWARM_KEY,
         attacks=attacks,
+        operator_pub=OPERATOR.public_key(),
     )
     sim = Simulation(config)
     sim.run()
@@ -59,8 +62,12 @@ def test_the_attacker_changes_nothing_in_a_signed_swarm(drop: float) -> None:
     assert set(sent) == set(ATTACKS) and all(n > 0 for n in sent.values())
     rejected = sec["rejected"]
     # Each kind meets the check it was made for.
-    for reason in (A.BAD_TAG, A.TOO_OLD, A.MISSING_TRAILER, A.UNKNOWN_KEY, A.BAD_FORMAT):
+    for reason in (A.BAD_TAG, A.TOO_OLD, A.MISSING_TRAILER, A.UNKNOWN_KEY):
         assert rejected.get(reason, 0) > 0, (reason, rejected)
+    # Forged operator commands: refused by every robot's gate, none acted on.
+    gates = [r.runtime.commands for r in attacked.robots.values()]
+    refused = sum(g.counters["bad-signature"] + g.counters["unknown-key"] for g in gates if g)
+    assert refused > 0 and sum(g.counters["accepted"] for g in gates if g) == 0
     # Honest bundles only are accepted: as many as without the attacker.
     assert sec["accepted"] == calm.summary()["security"]["accepted"]  # type: ignore[index]
 
@@ -92,3 +99,35 @@ def test_the_configuration_is_checked() -> None:
         Simulation(SimConfig(script=TASKS, robots=2, security="maybe"))
     with pytest.raises(ConfigError, match="--attack"):
         Simulation(SimConfig(script=TASKS, robots=2, attacks=("jam",)))
+
+
+def test_sim_run_with_keys_and_an_attacker_writes_the_security_summary(tmp_path: Path) -> None:
+    import json
+
+    from typer.testing import CliRunner
+
+    from fieldkit.cli import app
+    from fieldkit.update.keys import init_keys
+
+    init_keys(tmp_path / "keys")
+    runner = CliRunner()
+    base = ["sim", "run", str(TASKS), "--robots", "4", "--seconds", "14", "--drop", "0.5"]
+    out = tmp_path / "run"
+    result = runner.invoke(
+        app,
+        [*base, "--out", str(out), "--security", "signed", "--keys", str(tmp_path / "keys"),
+         "--attack", "replay,forge,command,flood"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "security none" not in result.output
+    sec = json.loads((out / "summary.json").read_text())["security"]
+    assert sec["mode"] == "signed" and sec["accepted_from_attacker"] == 0
+    assert sum(sec["rejected"].values()) > 0 and set(sec["attacker"]["sent"]) == set(ATTACKS)
+    # Without keys: none, said first thing on stderr; signed without keys, or a made-up
+    # attack, is refused.
+    result = runner.invoke(app, [*base, "--out", str(tmp_path / "plain")])
+    assert result.exit_code == 0 and "warning: security none" in result.stderr
+    result = runner.invoke(app, [*base, "--out", str(tmp_path / "x"), "--security", "signed"])
+    assert result.exit_code == 1 and "--keys" in result.stderr
+    result = runner.invoke(app, [*base, "--out", str(tmp_path / "x"), "--attack", "jam"])
+    assert result.exit_code == 2 and "replay,forge,command,flood" in result.stderr

@@ -63,6 +63,30 @@ def test_three_nodes_exchange_bundles_over_a_lossy_corrupting_relay(tmp_path: Pa
     assert written["final_states"] == summary["final_states"]
 
 
+def test_signed_nodes_gossip_through_the_relay_and_check_every_bundle(tmp_path: Path) -> None:
+    from fieldkit.update.keys import init_keys
+
+    script = tmp_path / "gossip.bzz"
+    script.write_text(GOSSIP)
+    init_keys(tmp_path / "keys")
+    out = tmp_path / "run"
+    result = CliRunner().invoke(
+        app,
+        ["sitl", "--robots", "3", "--script", str(script), "--seconds", "16", "--drop", "0.3",
+         "--seed", "4", "--out", str(out), "--keys", str(tmp_path / "keys")],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "security none" not in result.output  # keys given: signed, no warning
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["final_states"] == {"1": "ALL", "2": "ALL", "3": "ALL"}
+    sec = summary["security"]
+    assert sec["mode"] == "signed" and sec["mixed"] == []
+    # Every bundle heard was sealed by a robot of the swarm: accepted, none rejected.
+    assert sec["accepted"] > 3 * 2 * 60 and sec["rejected"] == {}
+    for rid in (1, 2, 3):
+        assert (out / f"robot{rid}" / "state" / "bundle.counter").exists()
+
+
 def test_sitl_command_line_errors(tmp_path: Path) -> None:
     runner = CliRunner()
     bad = runner.invoke(app, ["sitl", "--robots", "0", "--script", "x.bzz", "--out", str(tmp_path)])

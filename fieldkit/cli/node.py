@@ -29,6 +29,7 @@ from fieldkit.cli.options import (
     parse_commands,
     parse_sets,
     security_mode,
+    warn_if_insecure,
 )
 from fieldkit.cli.output import out_dir, write_json
 
@@ -37,6 +38,7 @@ if TYPE_CHECKING:
     from fieldkit.node.node import Node
     from fieldkit.radio.base import RadioLink
     from fieldkit.robot.link_security import LinkSecurity
+    from fieldkit.robot.operator_command import CommandGate
     from fieldkit.robot.profiles import Profile
     from fieldkit.robot.rc import RcCommand
     from fieldkit.update.keys import RobotKeys
@@ -160,7 +162,7 @@ def node_cmd(
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
     from fieldkit.errors import FieldkitError
     from fieldkit.node.log import NodeLog
-    from fieldkit.node.security import node_security
+    from fieldkit.node.security import node_commands, node_security
     from fieldkit.robot.profiles import ProfileError, load_profile
 
     # Everything that can be checked without a device is, before any port is opened.
@@ -197,8 +199,10 @@ def node_cmd(
         label = f"version {version.version} ({version.hash[:12]}…)"
     try:
         link_security = node_security(rid, mode, robot_keys, state_dir, say)
+        gate = node_commands(rid, robot_keys, state_dir)
     except FieldkitError as e:  # no state dir, a damaged counter or floor file
         raise fail(e) from None
+    warn_if_insecure(mode)
     say(f"security: {mode}" + ("" if mode == "signed" else " (bundles not authenticated)"))
     if out is not None:
         out_dir(out)  # now, not after an hour's run
@@ -222,6 +226,7 @@ def node_cmd(
             store=store,
             keys=robot_keys,
             security=link_security,
+            command_gate=gate,
         )
     finally:
         if link_radio is not None:
@@ -305,6 +310,7 @@ def _run(
     store: VersionStore | None,
     keys: RobotKeys | None,
     security: LinkSecurity,
+    command_gate: CommandGate | None,
 ) -> None:
     """Connect to the autopilot, run the loop, stop cleanly; exit 1 if the script is failed."""
     from fieldkit.node.autopilot_port import MavlinkAutopilot
@@ -347,6 +353,7 @@ def _run(
                 store=store,
                 keys=keys,
                 security=security,
+                command_gate=command_gate,
             )
             with _stop_on_signals(node):
                 node.run(seconds)

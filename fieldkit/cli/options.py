@@ -102,7 +102,7 @@ INSECURE = (
 
 def security_mode(given: str | None, has_keys: bool, profile_setting: str | None = None) -> str:
     """The radio's security mode: `--security`, else the profile's, else signed with keys
-    and none without; signed without keys is exit 1; none is said on stderr."""
+    and none without; signed without keys is exit 1 (`warn_if_insecure` says none)."""
     from fieldkit.robot.link_security import MODES, NONE, SIGNED
 
     if given is not None and given not in MODES:
@@ -114,9 +114,14 @@ def security_mode(given: str | None, has_keys: bool, profile_setting: str | None
             f"{source} authenticates bundles with the swarm key: give --keys DIR "
             f"(made by `fieldkit keys init DIR`), or --security none"
         )
-    if mode == NONE:
-        typer.echo(INSECURE, err=True)
     return mode
+
+
+def warn_if_insecure(mode: str) -> None:
+    """Say on stderr that a run's radio is not authenticated (once its command line and
+    configuration have checked out, so that an `error:` comes first)."""
+    if mode == "none":
+        typer.echo(INSECURE, err=True)
 
 
 def load_keys(directory: Path) -> RobotKeys:
@@ -239,6 +244,7 @@ __all__ = [
     "load_keys",
     "SecurityOption",
     "security_mode",
+    "warn_if_insecure",
     "SetOption",
     "SetValue",
     "UpdateAt",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, cast
 
@@ -9,16 +10,21 @@ import typer
 
 from bvm.errors import BuzzCompileError
 from fieldkit import resources
-from fieldkit.cli.errors import fail
+from fieldkit.cli.errors import fail, usage_error
 from fieldkit.cli.options import (
     CommandOption,
     HomeOption,
+    KeysOption,
+    SecurityOption,
     SetOption,
     UpdateOption,
+    load_keys,
     parse_commands,
     parse_home,
     parse_sets,
     parse_updates,
+    security_mode,
+    warn_if_insecure,
 )
 from fieldkit.cli.output import count_states, out_dir, progress_bar, write_json, wrote
 from fieldkit.cli.updates import release_for, update_outcome
@@ -72,6 +78,17 @@ def run_cmd(
     ] = None,
     set_: SetOption = None,
     update: UpdateOption = None,
+    security: SecurityOption = None,
+    keys: KeysOption = None,
+    attack: Annotated[
+        str | None,
+        typer.Option(
+            "--attack",
+            metavar="KIND[,KIND...]",
+            help="Add a hostile radio (no keys) in the swarm's middle: replay, forge, "
+            "command, flood. summary.json's security says what it sent and what was accepted.",
+        ),
+    ] = None,
 ) -> None:
     """Run SCRIPT on N simulated robots: OUT/summary.json, log.txt, trajectories.csv, plot.png."""
     from fieldkit.sim.simulator import (
@@ -82,6 +99,7 @@ def run_cmd(
     )
     from fieldkit.sim.updates import SimUpdate
 
+    attacks = parse_attacks(attack)
     commands = parse_commands(command)
     globals_ = parse_sets(set_)
     lat, lon = parse_home(home)
@@ -90,6 +108,8 @@ def run_cmd(
     sim_updates = [
         SimUpdate(u.t, release_for(u, dirs, profile), u.robot, u.script.name) for u in updates
     ]
+    robot_keys = load_keys(keys) if keys is not None else None
+    mode = security_mode(security, robot_keys is not None, _profile_security(profile))
     try:
         config = SimConfig(
             script=resources.find_script(script),
@@ -107,10 +127,15 @@ def run_cmd(
             origin=(lat, lon, 0.0),
             globals=dict(globals_),
             updates=sim_updates,
+            security=mode,
+            swarm_key=None if robot_keys is None else robot_keys.swarm_key,
+            attacks=attacks,
+            operator_pub=None if robot_keys is None else robot_keys.operator_pub,
         )
         sim = Simulation(config)
     except (ConfigError, BuzzCompileError) as e:
         raise fail(e) from None
+    warn_if_insecure(mode)
     out_dir(out)
     from fieldkit.sim.tracks import SimRecorder, write_tracks
 
@@ -147,6 +172,37 @@ def run_cmd(
         raise fail(f"{who} after a script error: robot {first['robot']}: {first['error']}")
 
 
+def parse_attacks(text: str | None) -> tuple[str, ...]:
+    """`--attack KIND[,KIND...]` (an unknown kind is a command-line error, exit 2)."""
+    from fieldkit.sim.attacker import ATTACKS
+
+    if text is None:
+        return ()
+    kinds = tuple(k.strip() for k in text.split(","))
+    unknown = [k for k in kinds if k not in ATTACKS]
+    if unknown or not kinds:
+        raise usage_error(f"--attack {text!r}: the kinds are {','.join(ATTACKS)}")
+    return kinds
+
+
+def _swarm_key(security: str | None, keys: Path | None) -> bytes | None:
+    """The swarm key an experiment signs its bundles with (None: `none`, said on stderr)."""
+    robot_keys = load_keys(keys) if keys is not None else None
+    mode = security_mode(security, robot_keys is not None)
+    warn_if_insecure(mode)
+    return robot_keys.swarm_key if robot_keys is not None and mode == "signed" else None
+
+
+def _profile_security(profile: str) -> str | None:
+    """The profile's `[radio] security`, if it loads (a bad profile is reported later)."""
+    from fieldkit.robot.profiles import ProfileError, load_profile
+
+    try:
+        return load_profile(profile).radio.security
+    except (ProfileError, OSError):
+        return None
+
+
 def _run_line(summary: dict[str, object], out: Path) -> str:
     """`sim run`'s last line: what ran, how it ended, and where the results are."""
     states = cast(dict[str, str | None], summary["final_states"])
@@ -175,6 +231,7 @@ def _plan(
     seed: int | None,
     seconds: float | None,
     script: Path | None,
+    swarm_key: bytes | None = None,
 ) -> Plan:
     """Validate one experiment's parameters into a Plan; errors exit 1 with `error: ...`."""
     from fieldkit.sim.experiments import ExperimentError, check_script, make_plan
@@ -188,6 +245,7 @@ def _plan(
             seed=seed or 0,
             seconds=seconds,
             script=script,
+            swarm_key=swarm_key,
         )
         check_script(plan)
     except ExperimentError as e:
@@ -262,6 +320,8 @@ def experiment_cmd(
     seed: _SeedOption = None,
     seconds: _SecondsOption = None,
     script: _ScriptOption = None,
+    security: SecurityOption = None,
+    keys: KeysOption = None,
 ) -> None:
     """Run one of the paper's experiments; write summary.json, CSVs and plots into OUT."""
     plan = _plan(
@@ -273,6 +333,7 @@ def experiment_cmd(
         seconds,
         script,
     )
+    plan = dataclasses.replace(plan, swarm_key=_swarm_key(security, keys))
     out_dir(out)
     from fieldkit.sim.experiments import run_plan, write_outputs
 

@@ -22,6 +22,7 @@ from fieldkit.cli.options import (
     parse_sets,
     parse_updates,
     security_mode,
+    warn_if_insecure,
 )
 from fieldkit.cli.output import count_states, out_dir, progress_bar, wrote
 from fieldkit.cli.updates import release_for, split_versions, update_outcome
@@ -106,6 +107,7 @@ def sitl_cmd(
     for u in updates:  # compiled and tried before any node starts: a bad one is never sent
         sitl_update = SitlUpdate(u.t, release_for(u, dirs, profile), u.robot, u.script.name)
     out_dir(out)  # an --out that is a file fails here, with `error:`
+    warn_if_insecure(mode)
     cfg = SitlConfig(
         script=script.resolve(),
         robots=robots,

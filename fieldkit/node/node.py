@@ -32,6 +32,7 @@ from fieldkit.radio.base import RadioLink
 from fieldkit.robot import geo
 from fieldkit.robot.bundle_auth import CounterError
 from fieldkit.robot.link_security import LinkSecurity
+from fieldkit.robot.operator_command import CommandGate
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.runtime import RobotRuntime, ScriptStatus
@@ -66,13 +67,15 @@ class Node:
         store: VersionStore | None = None,
         keys: RobotKeys | None = None,
         security: LinkSecurity | None = None,
+        command_gate: CommandGate | None = None,
     ) -> None:
         """`commands` are this robot's remote-control codes (times from start); `out` takes
         each line the node logs, unstamped (default: a `NodeLog` on stdout); `seed` seeds
         the script's generators (with the robot id: each robot its own); `globals_` are
         script globals set before `init()` (`--set`); `store` is the `--state-dir` version
         store `program` came from, `keys` the `--keys` (both None without the options);
-        `security` seals and checks the bundles (`node_security`; None: plain bytes)."""
+        `security` seals and checks the bundles (`node_security`; None: plain bytes);
+        `command_gate` checks the operator's signed commands (`node_commands`)."""
         self.profile = profile
         #: What the update agent works with: the robot's versions and its keys.
         self.store = store
@@ -102,6 +105,7 @@ class Node:
             # Nor can a first call's translation (50-110 ms of a tick, measured).
             translate_ahead=True,
             security=security,
+            commands=command_gate,
         )
         self.floor_errors = 0
         self.runtime.start(program, sensors_from(vehicle.telemetry(), self.frame), globals_)
@@ -159,6 +163,8 @@ class Node:
         if self.radio is not None:
             if out.bundle:  # b"": no counter could be had (the runtime said why)
                 self.radio.send(out.bundle)
+            for relay in runtime.take_relays():  # the operator's commands, passed on once
+                self.radio.send(relay)
             if frame is not None:
                 self.radio.send(frame)
         self._save_floors()
@@ -238,6 +244,7 @@ class Node:
             "final_state": runtime.state,
             "failsafe": runtime.supervisor.failsafe,
             "security": None if runtime.security is None else runtime.security.summary(),
+            "commands": None if runtime.commands is None else dict(runtime.commands.counters),
         } | self._update_summary()
 
     def _update_summary(self) -> dict[str, object]:

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 from fieldkit.errors import FieldkitError
 from fieldkit.robot import bundle_auth as auth
 from fieldkit.robot.link_security import NONE, SIGNED, LinkSecurity
+from fieldkit.robot.operator_command import CommandGate, CommandSeqStore
 
 if TYPE_CHECKING:
     from fieldkit.update.keys import RobotKeys
@@ -22,6 +23,8 @@ if TYPE_CHECKING:
 COUNTER_FILE = "bundle.counter"
 #: Its neighbours' highest counters, saved about once a minute.
 FLOORS_FILE = "bundle.floors"
+#: The last operator command's sequence number acted on, saved before acting.
+COMMAND_SEQ_FILE = "command.seq"
 
 
 def node_security(
@@ -56,4 +59,16 @@ def node_security(
     return security
 
 
-__all__ = ["COUNTER_FILE", "FLOORS_FILE", "node_security"]
+def node_commands(
+    robot_id: int, keys: RobotKeys | None, state_dir: Path | None
+) -> CommandGate | None:
+    """The gate for the operator's signed commands: None without keys (no command heard on
+    the radio is then acted on); without a state directory its memory of the last command
+    acted on lasts until the node stops."""
+    if keys is None:
+        return None
+    store = None if state_dir is None else CommandSeqStore(state_dir / COMMAND_SEQ_FILE)
+    return CommandGate(robot_id, keys.operator_pub, store)
+
+
+__all__ = ["COMMAND_SEQ_FILE", "COUNTER_FILE", "FLOORS_FILE", "node_commands", "node_security"]

@@ -39,6 +39,7 @@ from fieldkit.robot import geo
 from fieldkit.robot import neighbors as nb
 from fieldkit.robot.bundle_auth import CounterError
 from fieldkit.robot.link_security import LinkSecurity
+from fieldkit.robot.operator_command import CommandGate, SeqFileError, is_command
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.safety import Order, Supervisor
@@ -107,6 +108,7 @@ class RobotRuntime:
         graph_loader: Callable[[str], bvm.Table] | None = None,
         translate_ahead: bool = False,
         security: LinkSecurity | None = None,
+        commands: CommandGate | None = None,
     ) -> None:
         """`seed` seeds the VM's and the script API's generators (each robot its own);
         `max_ticks` / `max_seconds` bound one step of a runaway script (instructions, for
@@ -115,7 +117,8 @@ class RobotRuntime:
         no tick compiles: a node's choice (its ticks have deadlines), not the simulator's
         (translations specialized on first calls run a big swarm faster); `security` seals
         the bundles sent and checks those heard (None: plain bytes, as `none` without its
-        counters)."""
+        counters); `commands` checks the operator's signed commands heard on the radio (None:
+        such frames are counted and ignored: without operator.pub none can be trusted)."""
         self.id = robot_id
         self.profile = profile
         self.frame = frame
@@ -126,6 +129,11 @@ class RobotRuntime:
         self.graph_loader = graph_loader
         self.translate_ahead = translate_ahead
         self.security = security
+        self.commands = commands
+        #: Operator commands accepted off the radio, run one a tick before any local one.
+        self.pending_rc: list[RcCommand] = []
+        #: Command frames to pass on unchanged (`take_relays`), each valid one once.
+        self.relays: list[bytes] = []
         self.supervisor = Supervisor(profile, frame)
         self.heard: nb.HeardTable = {}
         self.timeout = nb.timeout_ticks(profile.node.loop_rate_hz)
@@ -259,7 +267,11 @@ class RobotRuntime:
     def receive_bundle(self, data: bytes, where: tuple[float, float] | None = None) -> None:
         """A bundle's bytes off the radio; the sender's position is the bundle's GPS unless
         the host knows better (`where`: east, north). A bad bundle costs a counter; with
-        `security`, nothing it drops (unsigned, forged, replayed) is decoded at all."""
+        `security`, nothing it drops (unsigned, forged, replayed) is decoded at all.
+        An operator's command frame (type 17) goes to the command gate instead."""
+        if is_command(data):
+            self._operator_command(data)
+            return
         security = self.security
         if security is not None:
             opened = security.open(data)
@@ -282,6 +294,31 @@ class RobotRuntime:
             east, north = where
         self.hear(b.robot, (east, north, self.ticks), b.messages)
 
+    def _operator_command(self, data: bytes) -> None:
+        gate = self.commands
+        if gate is None:
+            self.counters["commands_unchecked"] += 1
+            return
+        try:
+            result = gate.receive(data)
+        except SeqFileError as e:  # cannot persist: acting could repeat after a reboot
+            self.counters["commands_unsaved"] += 1
+            _log.error("robot %d: operator command not acted on: %s", self.id, e)
+            return
+        if result.relay is not None:
+            self.relays.append(result.relay)
+        if result.act is not None:
+            cmd = result.act
+            self.pending_rc.append(cmd.rc(self.id))
+            _log.warning(
+                "robot %d: operator command %d accepted: code %d", self.id, cmd.seq, cmd.code
+            )
+
+    def take_relays(self) -> list[bytes]:
+        """The command frames to send on unchanged, since the last call."""
+        relays, self.relays = self.relays, []
+        return relays
+
     # ------------------------------------------------------------ one tick
 
     def neighbor_columns(self, sensors: Sensors) -> nb.Columns:
@@ -299,7 +336,10 @@ class RobotRuntime:
         """Step, radio out, actuators: one tick. `neighbors` are this robot's columns if
         the host computed them (a simulator does a swarm at once); `time_ns` goes into
         the bundle's time field (0 where no wall clock should leak, as in simulation)."""
-        # sensors: the remote-control code of this tick, if any
+        # sensors: the remote-control code of this tick, if any (the host's, else the
+        # operator's oldest signed command heard)
+        if rc is None and self.pending_rc:
+            rc = self.pending_rc.pop(0)
         if rc is None:
             sensors.rc_cmd = 0
             sensors.rc_goto = None

@@ -24,14 +24,16 @@ has; the bytes it sends claim real robots' ids.
 from __future__ import annotations
 
 import random
-import struct
 from collections import Counter, deque
 from collections.abc import Sequence
 from typing import Final
 
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
 from bvm import wire
 from fieldkit.robot import bundle as wirebundle
 from fieldkit.robot import bundle_auth as auth
+from fieldkit.robot.operator_command import ALL, OperatorCommand, is_command, sign_command
 from fieldkit.sim.radio import LinkModel, Position, RadioModel
 
 #: The attack kinds `--attack` takes.
@@ -46,9 +48,6 @@ PER_TICK: Final = 2
 #: The XBee-PRO 900HP's fastest RF rate, 200 kbit/s, is 25 kB/s: ten 250-byte frames in a
 #: 100 ms tick, before the mesh's own overhead (an upper bound of what one radio sends).
 FLOOD_FRAMES_PER_TICK: Final = 10
-
-#: The payload64 type of a signed operator command (fieldkit/robot/operator_command.py).
-COMMAND_FRAME: Final = 17
 
 
 class Attacker:
@@ -82,6 +81,7 @@ class Attacker:
         # Its own radio: the swarm's link model, its own loss draws.
         self.radio = RadioModel(link, seed=self.rng.getrandbits(64))
         self._hear = random.Random(f"attack-hear:{seed}")
+        self._key = Ed25519PrivateKey.from_private_bytes(self.rng.randbytes(32))  # its own
         self._link = link
         #: Bytes recorded for replay: (tick due, data).
         self._recorded: deque[tuple[int, bytes]] = deque()
@@ -99,7 +99,7 @@ class Attacker:
         link = self._link
         if link.drop and self._hear.random() < link.drop:
             return
-        if len(data) >= 8 and data[6] << 8 | data[7] == COMMAND_FRAME:
+        if is_command(data):
             if len(self._commands) < 64:
                 self._commands.append(data)
             return
@@ -202,18 +202,20 @@ class Attacker:
         return self.rng.randrange(256)
 
     def _command_frame(self, t: int) -> bytes:
-        """A type-17 frame with a signature it made up: land, take off or a waypoint."""
+        """A command frame signed by a key of its own: land, take off or a waypoint; mostly
+        claiming the operator's key id (public: it is on every command), so it fails the
+        signature check rather than the key check."""
         rng = self.rng
         code = rng.choice((21, 22, 16))
         params = (1.0, *self.origin, 10.0) if code == 16 else ()
-        target = rng.choice((*self.robot_ids[:4], 0xFFFF))
-        seq = rng.randrange(1, 1 << 40)
-        head = struct.pack("<HBBHHQ", COMMAND_FRAME, 1, len(params), target, code, seq)
-        body = struct.pack(f"<{len(params)}d", *params)
-        kid = self.operator_key_id if rng.random() < 0.7 else rng.randbytes(8)
-        image = head + body + kid + rng.randbytes(64)
-        # Each 8-byte word big-endian on the air, as every payload64 word.
-        return b"".join(image[i : i + 8][::-1] for i in range(0, len(image), 8))
+        target = rng.choice((*self.robot_ids[:4], ALL))
+        cmd = OperatorCommand(rng.randrange(1, 1 << 40), target, code, params)
+        data = sign_command(self._key, cmd)
+        if rng.random() < 0.3:
+            return data  # its own key id: unknown-key
+        # The key id is the word before the 8-word signature (words reversed on the air).
+        at = len(data) - 8 * 9
+        return data[:at] + self.operator_key_id[::-1] + data[at + 8 :]
 
     def summary(self) -> dict[str, object]:
         """What it sent, by kind."""

@@ -27,7 +27,7 @@ import random
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import bvm
 from fieldkit.errors import ConfigError
@@ -35,6 +35,8 @@ from fieldkit.robot import bundle as wirebundle
 from fieldkit.robot import bundle_auth, geo
 from fieldkit.robot import neighbors as nb
 from fieldkit.robot.link_security import MODES, NONE, SIGNED, LinkSecurity
+from fieldkit.robot.operator_command import ACCEPTED as COMMAND_ACCEPTED
+from fieldkit.robot.operator_command import CommandGate, operator_key_id
 from fieldkit.robot.profiles import Profile, load_profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.runtime import RobotRuntime
@@ -45,6 +47,9 @@ from fieldkit.sim.radio import LinkModel, RadioModel
 from fieldkit.sim.updates import SimUpdate, SwarmUpdates
 from fieldkit.update.release import Release
 from fieldkit.vehicle.kinematics import Vehicle
+
+if TYPE_CHECKING:
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 _log = logging.getLogger("fieldkit.sim")
 
@@ -142,7 +147,8 @@ class SimConfig:
     security: str = NONE  # signed: every bundle sealed under `swarm_key` (docs/security.md)
     swarm_key: bytes | None = None  # the keys' swarm.key, for `signed`
     attacks: Sequence[str] = ()  # a hostile radio in the swarm's middle (fieldkit/sim/attacker.py)
-    operator_key_id: bytes | None = None  # the operator key's public id (what `command` forges)
+    # The operator's public key (operator.pub): robots act on radio commands it signed.
+    operator_pub: Ed25519PublicKey | None = None
 
     def validate(self) -> None:
         """Raise ConfigError for any invalid parameter."""
@@ -294,6 +300,7 @@ class Simulation:
         self._heard: dict[int, nb.HeardTable] = {}
         # signed: each robot's replay window, fed every bundle it hears (see `step`).
         self._admit: dict[int, Callable[[int, int], bool]] = {}
+        pub = config.operator_pub
         key = None
         if config.security == SIGNED and config.swarm_key is not None:
             key = bundle_auth.bundle_key(config.swarm_key)
@@ -325,6 +332,7 @@ class Simulation:
                 log_sink=self._sink(rid),
                 max_ticks=config.max_ticks_per_step,
                 security=security,
+                commands=None if pub is None else CommandGate(rid, pub),
             )
             robot = SimRobot(rid, runtime, vehicle)
             self.robots[rid] = robot
@@ -341,6 +349,7 @@ class Simulation:
     def _attacker(self, config: SimConfig) -> Attacker:
         """The hostile radio, at the middle of the swarm's start positions."""
         robots = list(self.robots.values())
+        pub = config.operator_pub
         middle = (
             sum(r.vehicle.x for r in robots) / len(robots),
             sum(r.vehicle.y for r in robots) / len(robots),
@@ -356,7 +365,7 @@ class Simulation:
             radio_id=radio_id,
             robot_ids=sorted(taken),
             origin=(self.frame.lat, self.frame.lon),
-            operator_key_id=config.operator_key_id,
+            operator_key_id=None if pub is None else operator_key_id(pub),
         )
 
     @staticmethod
@@ -466,6 +475,9 @@ class Simulation:
             if runtime.error is not None and robot.id not in self._failed:
                 self._note_error(robot)
             self._send(robot, out.bundle, out.messages)
+            if runtime.relays:
+                for relay in runtime.take_relays():  # operator commands, passed on once
+                    self.radio.broadcast(t, robot.id, relay)
             if out.order is not None:
                 self._actuate(robot, out.order)
             robot.vehicle.step(TICK_S)
@@ -491,6 +503,9 @@ class Simulation:
             if runtime.error is not None and robot.id not in self._failed:
                 self._note_error(robot)
             self._send(robot, out.bundle, out.messages)
+            if runtime.relays:
+                for relay in runtime.take_relays():  # operator commands, passed on once
+                    self.radio.broadcast(t, robot.id, relay)
             frame = updater.after_step()
             if frame is not None:
                 room = self.radio.room(t, robot.id)
@@ -515,14 +530,17 @@ class Simulation:
                 if robot is None:
                     continue
                 runtime = robot.runtime
-                # Accepted: past the verifier (signed) or decoded and heard (none).
+                # Accepted: past the verifier (signed) or decoded and heard (none), or a
+                # command acted on.
                 counters = (
                     runtime.counters if runtime.security is None else runtime.security.counters
                 )
                 key = "bundles_heard" if runtime.security is None else bundle_auth.ACCEPTED
-                before = counters[key]
+                gate = runtime.commands
+                before = counters[key] + (0 if gate is None else gate.counters[COMMAND_ACCEPTED])
                 runtime.receive_bundle(data)
-                self.accepted_from_attacker += counters[key] - before
+                after = counters[key] + (0 if gate is None else gate.counters[COMMAND_ACCEPTED])
+                self.accepted_from_attacker += after - before
 
     def _receive_update(self, data: bytes, receivers: Sequence[int]) -> None:
         updaters = self.updates.updaters if self.updates is not None else {}

@@ -133,6 +133,7 @@ class RunSpec:
     script: str
     include_dirs: tuple[str, ...] = ()
     shape: str | None = None  # task allocation: the task graph
+    swarm_key: bytes | None = None  # signed bundles (None: plain, ROSBuzz's bytes)
 
     def commands(self) -> list[RcCommand]:
         """The ground station's RC codes for this run."""
@@ -153,6 +154,8 @@ class RunSpec:
             commands=self.commands(),
             include_dirs=self.include_dirs,
             globals=self.script_globals(),
+            security="none" if self.swarm_key is None else "signed",
+            swarm_key=self.swarm_key,
         )
 
     @property

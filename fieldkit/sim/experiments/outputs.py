@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import SupportsInt, cast
 
 from fieldkit.results import write_json
+from fieldkit.robot.bundle_auth import SEALED_MAX_MSG_SIZE
 from fieldkit.sim.experiments.base import (
     BUNDLE_LIMIT_BYTES,
     XBEE_FRAME_BYTES,
@@ -69,7 +70,8 @@ def summarize(plan: Plan, results: Sequence[RunResult]) -> dict[str, object]:
         "schedule_s": e.schedule(),
         "max_bundle_bytes": max(_int(r, "max_bundle_bytes") for r in results),
         "mean_bundle_bytes": rounded(content / bundles) if bundles else 0.0,
-        "bundle_limit_bytes": BUNDLE_LIMIT_BYTES,
+        "bundle_limit_bytes": SEALED_MAX_MSG_SIZE if plan.swarm_key else BUNDLE_LIMIT_BYTES,
+        "security": "signed" if plan.swarm_key else "none",
         "max_air_bytes_per_step": max(_int(r, "max_air_bytes") for r in results),
         "mean_air_bytes_per_step": rounded(air / air_steps) if air_steps else 0.0,
         "xbee_frame_bytes": XBEE_FRAME_BYTES,

@@ -27,6 +27,7 @@ class Plan:
     seed: int
     seconds: float
     script: str
+    swarm_key: bytes | None = None  # signed bundles under this key (docs/security.md)
 
     def specs(self) -> list[RunSpec]:
         """The runs, in grid order (robots, then drop, then run): the order of every output."""
@@ -40,6 +41,7 @@ class Plan:
             seconds=self.seconds,
             script=self.script,
             include_dirs=(str(Path(self.script).parent),),
+            swarm_key=self.swarm_key,
         )
         out = []
         for n in self.robots:
@@ -62,6 +64,7 @@ def make_plan(
     seed: int = 0,
     seconds: float | None = None,
     script: str | Path | None = None,
+    swarm_key: bytes | None = None,
 ) -> Plan:
     """Validate the parameters of experiment `name` and build its grid (ExperimentError)."""
     e = EXPERIMENTS.get(name)
@@ -90,7 +93,7 @@ def make_plan(
             f"{MISSION_S:g} s) and at most {MAX_SECONDS:g}, got {seconds:g}"
         )
     path = Path(script) if script is not None else SCRIPT_DIR / e.script
-    return Plan(e, robots_t, drops_t, runs, seed, float(seconds), str(path.resolve()))
+    return Plan(e, robots_t, drops_t, runs, seed, float(seconds), str(path.resolve()), swarm_key)
 
 
 def check_script(plan: Plan) -> None:
