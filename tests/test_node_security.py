@@ -134,3 +134,64 @@ def test_signed_without_keys_or_state_dir_or_with_a_damaged_counter_says_what(
     (tmp_path / "s" / COUNTER_FILE).write_text("fieldkit-bundle-counter-v1 banana\n")
     with pytest.raises(FieldkitError, match="bundle.counter: not a bundle counter file"):
         node_security(1, SIGNED, keys, tmp_path / "s", print)
+
+
+GOT = """
+function step() { if (flight.rc_cmd != 0) { got = flight.rc_cmd  n = n + 1 } }
+n = 0
+"""
+
+
+def test_a_node_acts_on_the_operators_signed_command_once_and_relays_it(tmp_path: Path) -> None:
+    from fieldkit.node.security import COMMAND_SEQ_FILE, node_commands
+    from fieldkit.robot.operator_command import ALL, CommandSigner, OperatorCommand, sign_command
+    from fieldkit.update.keys import load_signing_key
+
+    init_keys(tmp_path / "keys")
+    keys = load_robot_keys(tmp_path / "keys")
+    signer = CommandSigner(load_signing_key(tmp_path / "keys"), tmp_path / "keys" / "command.seq")
+    port = 28000 + os.getpid() % 2000
+    rig = SimRig("solo", home=RIG_HOME, gps_fix_delay_s=0.0)
+    radio = UdpRadio(1, port=port, group="127.255.255.255")
+    ground = UdpRadio(200, port=port, group="127.255.255.255")
+    try:
+        rig.connect()
+        assert rig.run_until(lambda: rig.link.telemetry.gps_fix_type >= 3, 10.0)
+        t = rig.link.telemetry
+        home = (t.lat, t.lon, 0.0)
+        state = tmp_path / "state"
+        node = Node(
+            rig.profile,
+            bvm.compile_source(GOT, "got.bzz"),
+            1,
+            MavlinkAutopilot(rig.link, home),  # type: ignore[arg-type]
+            radio,
+            home=home,  # type: ignore[arg-type]
+            clock=rig.clock,
+            out=lambda _l: None,
+            security=node_security(1, SIGNED, keys, state, lambda _l: None),
+            command_gate=node_commands(1, keys, state),
+        )
+        land = signer.sign(ALL, 21)
+        forged = sign_command(load_signing_key(tmp_path / "keys"), OperatorCommand(99, 1, 22))
+        forged = forged[:-1] + bytes([forged[-1] ^ 1])  # one bit of the signature
+        relayed: list[bytes] = []
+        for k in range(30):
+            if k in (5, 10):
+                ground.send(land)  # the second time: heard again, not acted on again
+            if k == 15:
+                ground.send(forged)
+            node.tick()
+            rig.tick()
+            relayed += [d for s, d in ground.poll() if s == 1 and d == land]
+        assert node.runtime.vm["got"] == 21 and node.runtime.vm["n"] == 1
+        assert relayed == [land]  # passed on unchanged, once
+        counters = node.summary()["commands"]
+        assert isinstance(counters, dict)
+        assert counters["accepted"] == 1 and counters["replayed"] == 1
+        assert counters["bad-signature"] == 1
+        assert (state / COMMAND_SEQ_FILE).read_text().split()[1] == "1"
+    finally:
+        radio.close()
+        ground.close()
+        rig.close()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 
@@ -11,6 +12,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from fieldkit import resources
 from fieldkit.robot import bundle_auth as A
 from fieldkit.sim.attacker import ATTACKS
+from fieldkit.sim.experiments import make_plan
 from fieldkit.sim.simulator import ConfigError, SimConfig, Simulation
 
 SWARM_KEY = bytes(range(32))
@@ -19,12 +21,10 @@ TASKS = resources.find_script(Path("task_allocation.bzz"))
 
 
 def run(drop: float = 0.0, security: str = "signed", attacks: tuple[str, ...] = ()) -> Simulation:
-    config = SimConfig(
-        script=TASKS,
-        robots=8,
-        drop=drop,
-        seconds=25.0,
-        seed=3,
+    """The paper's task allocation (take-off, then RC 900 at 20 s) on 6 robots for 40 s."""
+    plan = make_plan("task-allocation", robots=[6], drops=[drop], runs=1, seed=3, seconds=40)
+    config = dataclasses.replace(
+        plan.specs()[0].config(),
         security=security,
         swarm_key=SWARM_KEY,
         attacks=attacks,
@@ -54,6 +54,7 @@ def _quiet() -> object:
 def test_the_attacker_changes_nothing_in_a_signed_swarm(drop: float) -> None:
     calm = run(drop)
     attacked = run(drop, attacks=ATTACKS)
+    assert set(calm.summary()["final_states"].values()) == {"LOCK"}  # type: ignore[union-attr]
     assert outcome(attacked) == outcome(calm)
     sec = attacked.summary()["security"]
     assert isinstance(sec, dict)
