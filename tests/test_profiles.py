@@ -528,3 +528,42 @@ def test_invalid_toml_gives_line_and_column(tmp_path: Path) -> None:
     msg = str(e.value)
     assert msg.startswith(f"{path}: invalid TOML: ")
     assert f"line {line + 1}, column 17" in msg
+
+
+def test_radio_security_is_optional_and_checked(tmp_path: Path) -> None:
+    assert load_profile("solo").radio.security is None  # signed with keys, none without
+    path = variant(
+        tmp_path,
+        "solo",
+        "per_step_budget_bytes = 190",
+        'per_step_budget_bytes = 190\nsecurity = "none"',
+    )
+    assert load_profile(path).radio.security == "none"
+    path = variant(
+        tmp_path,
+        "solo",
+        "per_step_budget_bytes = 190",
+        'per_step_budget_bytes = 190\nsecurity = "maybe"',
+    )
+    with pytest.raises(ProfileError, match="radio.security"):
+        load_profile(path)
+
+
+def test_a_profile_that_asks_for_signed_bundles_needs_keys(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from fieldkit.cli import app
+
+    path = variant(
+        tmp_path,
+        "solo",
+        "per_step_budget_bytes = 190",
+        'per_step_budget_bytes = 190\nsecurity = "signed"',
+    )
+    result = CliRunner().invoke(
+        app,
+        ["sim", "run", "task_allocation.bzz", "--robots", "2", "--seconds", "1",
+         "--profile", str(path), "--out", str(tmp_path / "run")],
+    )  # fmt: skip
+    assert result.exit_code == 1
+    assert "profile's [radio] security" in result.stderr and "--keys" in result.stderr

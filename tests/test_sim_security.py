@@ -132,3 +132,21 @@ def test_sim_run_with_keys_and_an_attacker_writes_the_security_summary(tmp_path:
     assert result.exit_code == 1 and "--keys" in result.stderr
     result = runner.invoke(app, [*base, "--out", str(tmp_path / "x"), "--attack", "jam"])
     assert result.exit_code == 2 and "replay,forge,command,flood" in result.stderr
+
+
+def test_a_world_readable_swarm_key_stops_a_run_naming_the_file(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from fieldkit.cli import app
+    from fieldkit.update.keys import init_keys
+
+    paths = init_keys(tmp_path / "keys")
+    paths.swarm_key.chmod(0o644)
+    result = CliRunner().invoke(
+        app,
+        ["sim", "run", str(TASKS), "--robots", "2", "--seconds", "1", "--out",
+         str(tmp_path / "run"), "--keys", str(tmp_path / "keys")],
+    )  # fmt: skip
+    assert result.exit_code == 1 and result.stderr.startswith("error: ")
+    assert str(paths.swarm_key) in result.stderr and "chmod 600" in result.stderr
+    assert not (tmp_path / "run").exists()  # stopped before anything ran
