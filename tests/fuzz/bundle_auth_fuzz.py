@@ -140,17 +140,6 @@ class Stats(runner.Stats):
             f"rejected: {dict(sorted(self.reasons.items()))}",
         ]
 
-    def merge(self, other: Stats) -> None:
-        """Add another slice's counts to these."""
-        self.inputs += other.inputs
-        self.failures += other.failures
-        self.kinds.update(other.kinds)
-        self.failed += other.failed
-        self.events += other.events
-        self.accepted += other.accepted
-        for r, n in other.reasons.items():
-            self.reasons[r] = self.reasons.get(r, 0) + n
-
 
 # ---------------------------------------------------------------- mutations
 

@@ -164,20 +164,6 @@ class Stats(runner.Stats):
             f"refused: {dict(sorted(self.reasons.items()))}",
         ]
 
-    def merge(self, other: Stats) -> None:
-        """Add another slice's counts to these."""
-        self.inputs += other.inputs
-        self.failures += other.failures
-        self.kinds.update(other.kinds)
-        self.failed += other.failed
-        self.events += other.events
-        self.acted += other.acted
-        self.relayed += other.relayed
-        self.not_for_me += other.not_for_me
-        self.reboots += other.reboots
-        for r, n in other.reasons.items():
-            self.reasons[r] = self.reasons.get(r, 0) + n
-
 
 # ---------------------------------------------------------------- mutations
 

@@ -12,7 +12,7 @@ import collections
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, TypeVar
 
 #: Inputs between two progress lines of a long campaign, and the least seconds between them.
@@ -43,6 +43,19 @@ class Stats:
     def details(self) -> list[str]:
         """The report's lines between the rate and the failures: the kinds of input run."""
         return [f"kinds: {dict(sorted(self.kinds.items()))}"]
+
+    def merge(self, other: Stats) -> None:
+        """Add another slice's counts to these, field by field (a subclass's counts too):
+        numbers add up, lists extend, dicts of counts add up key by key."""
+        for f in fields(self):
+            mine, theirs = getattr(self, f.name), getattr(other, f.name)
+            if isinstance(mine, list):
+                mine.extend(theirs)
+            elif isinstance(mine, dict):
+                for key, n in theirs.items():
+                    mine[key] = mine.get(key, 0) + n
+            else:
+                setattr(self, f.name, mine + theirs)
 
 
 S = TypeVar("S", bound=Stats)

@@ -89,17 +89,6 @@ class Stats(runner.Stats):
             f"rollbacks: {self.rollbacks}, patches refused: {self.refused_patches}",
         ]
 
-    def merge(self, other: Stats) -> None:
-        """Add another slice's counts to these."""
-        self.inputs += other.inputs
-        self.failures += other.failures
-        self.kinds.update(other.kinds)
-        self.failed += other.failed
-        self.accepted += other.accepted
-        self.switches += other.switches
-        self.rollbacks += other.rollbacks
-        self.refused_patches += other.refused_patches
-
 
 # ---------------------------------------------------------------- valid frames
 
