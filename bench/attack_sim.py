@@ -82,6 +82,7 @@ def one_run(base: SimConfig) -> dict[str, object]:
         },
         "plain_swarm_changed_by_attack": outcome(sims["none+attack"]) != outcome(sims["none"]),
         "rejected": signed_sec["rejected"],
+        "commands": signed_sec.get("commands", {}),
         "attacker_sent": signed_sec["attacker"]["sent"],  # type: ignore[index]
         "mean_bundle_air_bytes": {
             "none": summaries["none"]["mean_bundle_air_bytes"],

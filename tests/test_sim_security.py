@@ -66,9 +66,9 @@ def test_the_attacker_changes_nothing_in_a_signed_swarm(drop: float) -> None:
     for reason in (A.BAD_TAG, A.TOO_OLD, A.MISSING_TRAILER, A.UNKNOWN_KEY):
         assert rejected.get(reason, 0) > 0, (reason, rejected)
     # Forged operator commands: refused by every robot's gate, none acted on.
-    gates = [r.runtime.commands for r in attacked.robots.values()]
-    refused = sum(g.counters["bad-signature"] + g.counters["unknown-key"] for g in gates if g)
-    assert refused > 0 and sum(g.counters["accepted"] for g in gates if g) == 0
+    commands = sec["commands"]
+    assert commands["bad-signature"] > 0 and commands["unknown-key"] > 0
+    assert "accepted" not in commands and "relayed" not in commands
     # Honest bundles only are accepted: as many as without the attacker.
     assert sec["accepted"] == calm.summary()["security"]["accepted"]  # type: ignore[index]
 

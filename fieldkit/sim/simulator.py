@@ -674,6 +674,14 @@ class Simulation:
             "rejected": dict(sorted(rejected.items())),
             "mixed": sorted(mixed),
         }
+        gates = [r.runtime.commands for r in self.robots.values() if r.runtime.commands]
+        if gates:
+            # Operator commands heard on the radio: what the robots' gates made of them.
+            totals: dict[str, int] = {}
+            for gate in gates:
+                for outcome, n in gate.counters.items():
+                    totals[outcome] = totals.get(outcome, 0) + n
+            out["commands"] = dict(sorted(totals.items()))
         if self.attacker is not None:
             bad = sum(r.runtime.counters["bundle_errors"] for r in self.robots.values())
             if bad:
