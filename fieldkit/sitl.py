@@ -403,7 +403,10 @@ class _Updating:
         # A run starts from scratch: version 0 everywhere, under keys of its own. What an
         # earlier run left in the same out/ (keys, the nodes' versions) would otherwise be
         # refused (keys are never overwritten) or run instead of --script.
+        given = None if cfg.keys is None else cfg.keys.resolve()
         for old in (cfg.out / "keys", cfg.out / "robot-keys", *(r.out / "state" for r in robots)):
+            if given is not None and given.is_relative_to(old.resolve()):
+                continue  # --keys names an earlier run's keys: keep them, use them
             shutil.rmtree(old, ignore_errors=True)
         # The operator's keys (--keys), else a pair of the run's own.
         keys = cfg.keys if cfg.keys is not None else init_keys(cfg.out / "keys").directory

@@ -150,3 +150,28 @@ def test_a_world_readable_swarm_key_stops_a_run_naming_the_file(tmp_path: Path) 
     assert result.exit_code == 1 and result.stderr.startswith("error: ")
     assert str(paths.swarm_key) in result.stderr and "chmod 600" in result.stderr
     assert not (tmp_path / "run").exists()  # stopped before anything ran
+
+
+def test_out_of_range_the_attacker_can_only_relay_genuine_bundles_late() -> None:
+    # Robots 80 m apart with 50 m of range do not hear each other; the attacker between
+    # them hears both. What it records of one, re-sent 10-20 s later, reaches the other,
+    # which never heard that robot: a late relay of genuine bytes (docs/security.md#replay-
+    # rules). Nothing it made up is ever accepted.
+    config = SimConfig(
+        script=TASKS,
+        robots=2,
+        seconds=30.0,
+        spacing_m=80.0,
+        range_m=50.0,
+        security="signed",
+        swarm_key=SWARM_KEY,
+        attacks=ATTACKS,
+        operator_pub=OPERATOR.public_key(),
+    )
+    sim = Simulation(config)
+    sim.run()
+    sec = sim.summary()["security"]
+    assert isinstance(sec, dict)
+    assert sec["forgeries_accepted"] == 0
+    accepted = sec["attacker"]["accepted"]
+    assert set(accepted) == {"replay"} and sec["accepted_from_attacker"] == accepted["replay"] > 0

@@ -202,12 +202,12 @@ def node_cmd(
         gate = node_commands(rid, robot_keys, state_dir)
     except FieldkitError as e:  # no state dir, a damaged counter or floor file
         raise fail(e) from None
-    warn_if_insecure(mode)
-    say(f"security: {mode}" + ("" if mode == "signed" else " (bundles not authenticated)"))
     if out is not None:
         out_dir(out)  # now, not after an hour's run
     # The radio first: a missing XBee fails at once, not after the wait for the autopilot.
     link_radio = open_node_radio(prof, radio, rid, say)
+    warn_if_insecure(mode)
+    say(f"security: {mode}" + ("" if mode == "signed" else " (bundles not authenticated)"))
     try:
         _run(
             prof,

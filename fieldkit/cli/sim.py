@@ -135,8 +135,8 @@ def run_cmd(
         sim = Simulation(config)
     except (ConfigError, BuzzCompileError) as e:
         raise fail(e) from None
-    warn_if_insecure(mode)
     out_dir(out)
+    warn_if_insecure(mode)
     from fieldkit.sim.tracks import SimRecorder, write_tracks
 
     recorder = SimRecorder(sim)
@@ -186,10 +186,9 @@ def parse_attacks(text: str | None) -> tuple[str, ...]:
 
 
 def _swarm_key(security: str | None, keys: Path | None) -> bytes | None:
-    """The swarm key an experiment signs its bundles with (None: `none`, said on stderr)."""
+    """The swarm key an experiment signs its bundles with (None: `none`)."""
     robot_keys = load_keys(keys) if keys is not None else None
     mode = security_mode(security, robot_keys is not None)
-    warn_if_insecure(mode)
     return robot_keys.swarm_key if robot_keys is not None and mode == "signed" else None
 
 
@@ -335,6 +334,7 @@ def experiment_cmd(
     )
     plan = dataclasses.replace(plan, swarm_key=_swarm_key(security, keys))
     out_dir(out)
+    warn_if_insecure("none" if plan.swarm_key is None else "signed")
     from fieldkit.sim.experiments import run_plan, write_outputs
 
     specs = plan.specs()

@@ -364,6 +364,7 @@ def _send_over_radio(
     """Listen, find the version the swarm runs, build and test the new one (from the swarm's
     own positions), send the patch and report robot by robot until all switched."""
     from fieldkit.robot import bundle as wirebundle
+    from fieldkit.robot.bundle_auth import AuthError, Verifier, bundle_key, is_sealed
     from fieldkit.sim.trial import trial
     from fieldkit.update.keys import load_robot_keys, load_signing_key
     from fieldkit.update.operator import OperatorSession, run_session
@@ -379,10 +380,13 @@ def _send_over_radio(
     link = _open_ground_radio(url)
     positions: dict[int, tuple[float, float, float]] = {}
 
+    # A signed swarm's bundles are checked as a robot checks them; a plain one's decoded.
+    verifier = Verifier(bundle_key(swarm_key))
+
     def hear(data: bytes) -> None:
         try:
-            b = wirebundle.decode(data)
-        except wirebundle.BundleError:
+            b = wirebundle.decode(verifier.verify(data) if is_sealed(data) else data)
+        except (wirebundle.BundleError, AuthError):
             return
         positions[b.robot] = (b.lat, b.lon, b.alt)
 

@@ -219,6 +219,12 @@ class Node:
         failed = runtime.status is ScriptStatus.FAILED
         before = runtime.error
         runtime.destroy()
+        if runtime.security is not None:
+            # What the neighbours sent up to now: a restart then reopens no replay window.
+            try:
+                runtime.security.save_floors(now=True)
+            except CounterError as e:
+                self.out(f"bundle floors not saved at stop: {e}")
         if runtime.error is not before:  # destroy() failed
             failed = True
         return runtime.error if failed else None

@@ -156,11 +156,14 @@ class LinkSecurity:
 
     # ------------------------------------------------------------ state
 
-    def save_floors(self) -> bool:
-        """Save the verifier's floors if they moved far enough (once a minute at 10 Hz);
-        whether it wrote. CounterError if the file cannot be written."""
+    def save_floors(self, *, now: bool = False) -> bool:
+        """Save the verifier's floors if they moved far enough (once a minute at 10 Hz), or
+        `now` (a clean stop); whether it wrote. CounterError if the file cannot be written."""
         if self.floors is None or self.verifier is None:
             return False
+        if now:
+            self.floors.save(self.verifier.floors())
+            return True
         return self.floors.save_if_due(self.verifier.floors())
 
     def rejected(self) -> dict[str, int]:

@@ -52,9 +52,9 @@ FAILSAFE_ACTIONS: tuple[str, ...] = ("hold", "land", "rtl", "stop")
 GROUND_FAILSAFE_ACTIONS: tuple[str, ...] = ("stop", "hold")
 """Allowed failsafe actions for a ground robot (it cannot land or fly home)."""
 RADIO_KINDS: tuple[str, ...] = ("xbee", "udp")
-#: `[radio] security`: authenticated bundles or ROSBuzz's plain bytes (docs/security.md).
-SECURITY_MODES: tuple[str, ...] = ("signed", "none")
 """Allowed values of `radio.kind`."""
+SECURITY_MODES: tuple[str, ...] = ("signed", "none")
+"""Allowed values of `radio.security`: authenticated bundles or ROSBuzz's plain bytes."""
 ID_SOURCES: tuple[str, ...] = ("config", "hostname", "xbee")
 """Allowed values of `robot_id.source`."""
 MAX_ROBOT_ID = 255

@@ -89,6 +89,8 @@ class Attacker:
         self._bundles: list[bytes] = []  # a few recent bundles to edit (forge)
         #: Frames sent, by kind.
         self.sent: Counter[str] = Counter()
+        #: Receptions a robot accepted, by kind (the simulator counts them).
+        self.accepted: Counter[str] = Counter()
 
     # ------------------------------------------------------------ what it hears
 
@@ -103,11 +105,11 @@ class Attacker:
             if len(self._commands) < 64:
                 self._commands.append(data)
             return
-        if "replay" in self.kinds:
+        if "replay" in self.kinds and len(self._recorded) < MAX_RECORDED:
+            # Full: later bundles go unrecorded until the oldest are re-sent (dropping the
+            # oldest instead would, in a big swarm, drop each before it is due).
             delay = REPLAY_DELAY_TICKS + self.rng.randrange(REPLAY_DELAY_TICKS)
             self._recorded.append((t + delay, data))
-            if len(self._recorded) > MAX_RECORDED:
-                self._recorded.popleft()
         bundles = self._bundles
         bundles.append(data)
         if len(bundles) > 64:
@@ -123,7 +125,7 @@ class Attacker:
         for kind in self.kinds:
             for data in getattr(self, f"_{kind}")(t):
                 self.sent[kind] += 1
-                radio.broadcast(t, self.id, data)
+                radio.broadcast(t, self.id, data, note=kind)  # what it is, for the counts
 
     def _replay(self, t: int) -> list[bytes]:
         out: list[bytes] = []
@@ -218,8 +220,12 @@ class Attacker:
         return data[:at] + self.operator_key_id[::-1] + data[at + 8 :]
 
     def summary(self) -> dict[str, object]:
-        """What it sent, by kind."""
-        return {"kinds": list(self.kinds), "sent": dict(self.sent)}
+        """What it sent, and what robots accepted, by kind."""
+        return {
+            "kinds": list(self.kinds),
+            "sent": dict(self.sent),
+            "accepted": dict(self.accepted),
+        }
 
 
 __all__ = ["ATTACKS", "Attacker", "FLOOD_FRAMES_PER_TICK", "REPLAY_DELAY_TICKS"]

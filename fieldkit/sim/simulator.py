@@ -520,15 +520,21 @@ class Simulation:
         self.tick += 1
 
     def _hostile_in(self, t: int) -> None:
-        """The attacker's frames due now, through each receiver's whole radio-in path;
-        counts any that a robot accepted (none should be, when signed)."""
+        """The attacker's frames due now, through each receiver's whole radio-in path (an
+        update frame to its update agent, as on a node); counts, by attack kind, those a
+        robot accepted: a bundle past its checks, a command acted on."""
         assert self.attacker is not None
         robots = self.robots
-        for _sender, data, _pos, receivers, _note in self.attacker.radio.receptions(t):
+        updaters = self.updates.updaters if self.updates is not None else {}
+        accepted = self.attacker.accepted
+        for _sender, data, _pos, receivers, kind in self.attacker.radio.receptions(t):
             for receiver in receivers:
                 robot = robots.get(receiver)
                 if robot is None:
                     continue
+                updater = updaters.get(receiver)
+                if updater is not None and updater.receive(data):
+                    continue  # the update's own rules make a replayed frame harmless
                 runtime = robot.runtime
                 # Accepted: past the verifier (signed) or decoded and heard (none), or a
                 # command acted on.
@@ -540,7 +546,9 @@ class Simulation:
                 before = counters[key] + (0 if gate is None else gate.counters[COMMAND_ACCEPTED])
                 runtime.receive_bundle(data)
                 after = counters[key] + (0 if gate is None else gate.counters[COMMAND_ACCEPTED])
-                self.accepted_from_attacker += after - before
+                if after > before:
+                    accepted[cast(str, kind)] += after - before
+                    self.accepted_from_attacker += after - before
 
     def _receive_update(self, data: bytes, receivers: Sequence[int]) -> None:
         updaters = self.updates.updaters if self.updates is not None else {}
@@ -670,7 +678,8 @@ class Simulation:
             mixed.update(security.mixed)
         out: dict[str, object] = {
             "mode": self.config.security,
-            "accepted": accepted,
+            # Bundles past the checks (a plain swarm checks nothing, so counts nothing).
+            "accepted": accepted if self.config.security == SIGNED else None,
             "rejected": dict(sorted(rejected.items())),
             "mixed": sorted(mixed),
         }
@@ -688,6 +697,10 @@ class Simulation:
                 out["rejected"] = dict(sorted({**rejected, "undecodable": bad}.items()))
             out["attacker"] = self.attacker.summary()
             out["accepted_from_attacker"] = self.accepted_from_attacker
+            # Frames the attacker made up (not recorded ones re-sent): never accepted.
+            out["forgeries_accepted"] = sum(
+                n for kind, n in self.attacker.accepted.items() if kind != "replay"
+            )
         return {"security": out}
 
     def update_summary(self) -> dict[str, object]:

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from fieldkit.robot.bundle_auth import SEALED_MAX_MSG_SIZE
 from fieldkit.sim.experiments.base import (
     BUNDLE_LIMIT_BYTES,
     MISSION_S,
@@ -148,7 +149,13 @@ def plot_bytes(plan: Plan, results: Sequence[RunResult], path: Path) -> None:
     top.axhline(XBEE_FRAME_BYTES / 2, color="orange", ls="--", lw=1, label="half a frame")
     top.set_ylabel("bytes on the air per robot per step")
     top.set_title(f"{plan.experiment.name}: radio load (solid: mean, dotted: max)", fontsize=10)
-    bottom.axhline(BUNDLE_LIMIT_BYTES, color="red", ls="--", lw=1, label="ROSBuzz limit (190 B)")
+    if plan.swarm_key is None:
+        bottom.axhline(
+            BUNDLE_LIMIT_BYTES, color="red", ls="--", lw=1, label="ROSBuzz limit (190 B)"
+        )
+    else:
+        limit = SEALED_MAX_MSG_SIZE
+        bottom.axhline(limit, color="red", ls="--", lw=1, label=f"signed bundle limit ({limit} B)")
     bottom.axhline(XBEE_FRAME_BYTES / 2, color="orange", ls="--", lw=1, label="half a frame")
     bottom.set_ylabel("Buzz bundle content per robot per step (mean)")
     bottom.set_xlabel("simulated time (s)")
