@@ -92,7 +92,7 @@ def one_run(base: SimConfig) -> dict[str, object]:
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     """Run the grid, print a table, write the summary."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--drops", default="0,0.5")
@@ -100,8 +100,16 @@ def main() -> None:
     p.add_argument("--robots", type=int, default=6)
     p.add_argument("--seconds", type=float, default=120.0)
     p.add_argument("--out", type=Path, default=Path("docs/results/attack"))
-    args = p.parse_args()
+    args = p.parse_args(argv)
     logging.disable(logging.WARNING)  # every forged bundle is logged by each receiver
+    try:
+        run_grid(args)
+    finally:
+        logging.disable(logging.NOTSET)
+
+
+def run_grid(args: argparse.Namespace) -> None:
+    """The runs `args` ask for: the table on stdout, the summary in args.out."""
     drops = [float(d) for d in args.drops.split(",")]
     plan = make_plan(
         "task-allocation",

@@ -51,3 +51,15 @@ def test_ota_bench_updates_a_small_swarm_and_writes_its_files(tmp_path: Path) ->
         assert run["spread_update_bytes"] > run["patch_bytes"]
         assert "wall_s" not in run
     assert (tmp_path / "plot.png").stat().st_size > 10_000
+
+
+def test_attack_bench_finds_the_signed_swarm_unchanged(tmp_path: Path) -> None:
+    bench = load("attack_sim")
+    bench.main(["--drops", "0.5", "--runs", "1", "--seconds", "40", "--out", str(tmp_path)])
+    s = json.loads((tmp_path / "summary.json").read_text())
+    (run,) = s["runs"]
+    assert s["all_unchanged"] and s["accepted_from_attacker_signed"] == 0
+    assert run["accepted_from_attacker"]["none"] > 0 and run["plain_swarm_changed_by_attack"]
+    gap = run["mean_bundle_air_bytes"]["signed"] - run["mean_bundle_air_bytes"]["none"]
+    assert abs(gap - 16) < 0.5
+    assert run["commands"]["bad-signature"] > 0 and "accepted" not in run["commands"]
