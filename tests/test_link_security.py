@@ -137,3 +137,22 @@ def test_a_robot_that_cannot_keep_its_counter_falls_silent_and_says_so(tmp_path:
     out = rt.tick(sensors())
     assert out.bundle == b"" and rt.counters["unsent_bundles"] == 1
     assert rt.ticks == 1  # the tick went on: the vehicle still gets its orders
+
+
+def test_clock_jumps_change_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
+    """GPS time arriving late, an RTC back at 1970, a bogus week ahead: no check reads a clock,
+    so nothing locks out and nothing old gets in."""
+    import time
+
+    a, b = signed(1), signed(2)
+    sent = [a.seal(air(1)) for _ in range(5)]
+    assert all(b.open(x) is not None for x in sent)
+    for now in (0.0, 1e10, 86400.0 * 365 * 30, 5.0):  # 1970, far ahead, today, back again
+        monkeypatch.setattr(time, "time", lambda now=now: now)
+        monkeypatch.setattr(time, "time_ns", lambda now=now: int(now * 1e9))
+        monkeypatch.setattr(time, "monotonic", lambda now=now: now)
+        fresh = a.seal(air(1))
+        assert b.open(fresh) is not None  # never locked out
+        assert all(b.open(old) is None for old in sent)  # nothing already heard gets in
+        sent.append(fresh)
+    assert b.rejected() == {A.REPLAYED: sum(range(5, 9))}
