@@ -125,10 +125,9 @@ FORGER = _forger_key()
 
 
 @dataclass
-class Stats(runner.Stats):
+class Stats(runner.EventStats):
     """What a campaign did."""
 
-    events: int = 0
     accepted: int = 0
     reasons: dict[str, int] = field(default_factory=dict)
 
@@ -368,20 +367,14 @@ def check(
     return None
 
 
+def _build_and_check(seed: str, k: int, stats: Stats) -> tuple[list[Event], str | None]:
+    cap, floors, events = make_input(seed, k)
+    return events, check(cap, floors, events, stats)
+
+
 def run_one(seed: str, k: int, stats: Stats, out: Callable[[str], None]) -> None:
     """Make input k, check it, and record the outcome."""
-    try:
-        cap, floors, events = make_input(seed, k)
-        failure = check(cap, floors, events, stats)
-        kinds = {kind for kind, _, _ in events}
-    except Exception:
-        failure, kinds = "harness raised:\n" + traceback.format_exc(), {"harness"}
-        events = []
-    stats.events += len(events)
-    for kind in kinds:
-        stats.kinds[kind] += 1
-    if failure is not None:
-        stats.fail(f"{seed}:{k}", f"FAIL {seed}:{k}: {failure}", out, shown=20)
+    runner.run_events(seed, k, stats, out, _build_and_check)
 
 
 #: run(seed, *, seconds=None, max_inputs=None, start=0, out=print) -> Stats: a campaign.

@@ -11,7 +11,8 @@ import argparse
 import collections
 import math
 import time
-from collections.abc import Callable
+import traceback
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, TypeVar
 
@@ -95,6 +96,39 @@ def campaign(
             last = time.monotonic()
             progress(f"  ... inputs {stats.inputs}, failures {stats.failures}")
     return stats
+
+
+@dataclass
+class EventStats(Stats):
+    """The counts of a harness whose inputs are sequences of events `(kind, data, ...)`."""
+
+    events: int = 0
+
+
+E = TypeVar("E", bound=EventStats)
+
+
+def run_events(
+    seed: str,
+    k: int,
+    stats: E,
+    out: Callable[[str], None],
+    build_and_check: Callable[[str, int, E], tuple[Sequence[tuple[Any, ...]], str | None]],
+) -> None:
+    """Make input k of `seed` and check it (`build_and_check` returns its events and the
+    failure, or None), counting its events and their kinds; a harness that raises fails the
+    input, with its traceback."""
+    try:
+        events, failure = build_and_check(seed, k, stats)
+        kinds = {event[0] for event in events}
+    except Exception:
+        failure, kinds = "harness raised:\n" + traceback.format_exc(), {"harness"}
+        events = []
+    stats.events += len(events)
+    for kind in kinds:
+        stats.kinds[kind] += 1
+    if failure is not None:
+        stats.fail(f"{seed}:{k}", f"FAIL {seed}:{k}: {failure}", out, shown=20)
 
 
 def make_run(
