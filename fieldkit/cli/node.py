@@ -314,13 +314,17 @@ def _run(
 ) -> None:
     """Connect to the autopilot, run the loop, stop cleanly; exit 1 if the script is failed."""
     from fieldkit.node.autopilot_port import MavlinkAutopilot
+    from fieldkit.node.clock import TickClock
     from fieldkit.node.node import Node
     from fieldkit.vehicle.autopilot import AutopilotError
     from fieldkit.vehicle.link import Autopilot
 
+    # One time for the node and its autopilot core, frozen for each tick: a tick's decisions
+    # (heartbeats, retries, commands due) then depend on its recorded time alone.
+    tick_clock = TickClock()
     with _logging_to(say):
         try:
-            link = Autopilot.from_profile(prof, autopilot)
+            link = Autopilot.from_profile(prof, autopilot, clock=tick_clock.now)
         except AutopilotError as e:
             raise fail(e) from None
         try:
@@ -347,6 +351,7 @@ def _run(
                 radio,
                 home=home,
                 commands=commands,
+                clock=tick_clock,
                 out=say,
                 seed=seed,
                 globals_=globals_,

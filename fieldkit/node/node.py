@@ -27,6 +27,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import bvm
+from fieldkit.node.clock import TickClock
 from fieldkit.node.log import NodeLog
 from fieldkit.radio.base import RadioLink
 from fieldkit.robot import geo
@@ -60,7 +61,7 @@ class Node:
         *,
         home: tuple[float, float, float],
         commands: Sequence[RcCommand] = (),
-        clock: Callable[[], float] = time.monotonic,
+        clock: Callable[[], float] | TickClock = time.monotonic,
         out: Callable[[str], None] | None = None,
         seed: int = 0,
         globals_: Mapping[str, object] | None = None,
@@ -83,7 +84,9 @@ class Node:
         self.robot_id = robot_id
         self.vehicle = vehicle
         self.radio = radio
-        self.clock = clock
+        #: The node's time: frozen for the length of each tick (fieldkit/node/clock.py).
+        self.tick_clock = clock if isinstance(clock, TickClock) else TickClock(clock)
+        self.clock = self.tick_clock.now
         self.out: Callable[[str], None] = out if out is not None else NodeLog(robot_id)
         # The script API tags each line `[id] ` for hosts that mix robots in one stream;
         # the node's `out` names its one robot itself.
@@ -93,7 +96,7 @@ class Node:
         self.frame = geo.LocalFrame(*home)
         self.commands = sorted(commands, key=lambda c: c.t)
         self.late_ticks = 0
-        self.started = clock()
+        self.started = self.clock()
         self.runtime = RobotRuntime(
             robot_id,
             profile,
@@ -142,8 +145,15 @@ class Node:
     # ------------------------------------------------------------ one tick
 
     def tick(self) -> None:
-        """Run the five phases once."""
-        now = self.clock()
+        """Run the five phases once, at one time (`tick_clock`)."""
+        tick_clock = self.tick_clock
+        now = tick_clock.begin_tick()
+        try:
+            self._tick(now, tick_clock.unix_ns)
+        finally:
+            tick_clock.end_tick()
+
+    def _tick(self, now: float, unix_ns: int) -> None:
         runtime = self.runtime
         updater = self.updater
         # 1. radio in: update frames to the update agent, bundles to the runtime
@@ -157,7 +167,7 @@ class Node:
         # 3. step: the update's decision (stand by, switch, roll back) first
         if updater is not None:
             updater.before_step(sensors)
-        out = runtime.tick(sensors, self._due_command(now), time_ns=time.time_ns())
+        out = runtime.tick(sensors, self._due_command(now), time_ns=unix_ns)
         # 4. radio out: the bundle, then the update frame if there is one
         frame = updater.after_step() if updater is not None else None
         if self.radio is not None:
