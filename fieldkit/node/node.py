@@ -24,9 +24,10 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import bvm
+from bvm.digest import state_digest
 from fieldkit.node.clock import TickClock
 from fieldkit.node.log import NodeLog
 from fieldkit.radio.base import RadioLink
@@ -36,13 +37,31 @@ from fieldkit.robot.link_security import LinkSecurity
 from fieldkit.robot.operator_command import CommandGate
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
-from fieldkit.robot.runtime import RobotRuntime, ScriptStatus
+from fieldkit.robot.runtime import RobotRuntime, ScriptStatus, TickRecord
 from fieldkit.robot.vehicle import VehiclePort, sensors_from
 
 if TYPE_CHECKING:
     from fieldkit.update.host import RobotUpdater
     from fieldkit.update.keys import RobotKeys
     from fieldkit.update.store import VersionStore
+
+
+class FlightRecorder(Protocol):
+    """What keeps a flight (fieldkit/record/recorder.py): the node calls it through each
+    tick, in the tick's order; the autopilot's bytes reach it from the link's taps."""
+
+    def begin_tick(self, tick: int, clock_s: float, unix_ns: int) -> None:
+        """Tick `tick` begins at node time `clock_s` (wall time `unix_ns`)."""
+
+    def radio_in(self, sender: int, data: bytes) -> None:
+        """A frame the radio handed in this tick."""
+
+    def radio_out(self, data: bytes) -> None:
+        """A frame the node sent this tick."""
+
+    def end_tick(self, record: TickRecord, digest: bytes, log: list[str]) -> None:
+        """The tick ran: what it saw and did, its script-state digest, its script lines."""
+
 
 #: Late ticks logged one by one; after that every hundredth (a slow machine must not flood).
 LATE_TICKS_LOGGED = 10
@@ -69,6 +88,7 @@ class Node:
         keys: RobotKeys | None = None,
         security: LinkSecurity | None = None,
         command_gate: CommandGate | None = None,
+        recorder: FlightRecorder | None = None,
     ) -> None:
         """`commands` are this robot's remote-control codes (times from start); `out` takes
         each line the node logs, unstamped (default: a `NodeLog` on stdout); `seed` seeds
@@ -76,7 +96,8 @@ class Node:
         script globals set before `init()` (`--set`); `store` is the `--state-dir` version
         store `program` came from, `keys` the `--keys` (both None without the options);
         `security` seals and checks the bundles (`node_security`; None: plain bytes);
-        `command_gate` checks the operator's signed commands (`node_commands`)."""
+        `command_gate` checks the operator's signed commands (`node_commands`); `recorder`
+        keeps every tick's inputs and outputs (`--record`)."""
         self.profile = profile
         #: What the update agent works with: the robot's versions and its keys.
         self.store = store
@@ -111,6 +132,11 @@ class Node:
             commands=command_gate,
         )
         self.floor_errors = 0
+        self.recorder = recorder
+        self._record: TickRecord | None = None  # the tick's record, for the recorder
+        self._tick_log: list[str] = []  # the script's lines of the tick, for the recorder
+        if recorder is not None:
+            self.runtime.observer = self._observe
         self.runtime.start(program, sensors_from(vehicle.telemetry(), self.frame), globals_)
         # Over-the-air updates need both the versions (--state-dir) and the keys (--keys).
         self.updater: RobotUpdater | None = None
@@ -135,7 +161,13 @@ class Node:
             engine.pace(min(engine.base_interframe_s, self.period / 2))
 
     def _script_log(self, text: str) -> None:
-        self.out(text.removeprefix(self._script_tag))
+        text = text.removeprefix(self._script_tag)
+        if self.recorder is not None:
+            self._tick_log.append(text)
+        self.out(text)
+
+    def _observe(self, record: TickRecord) -> None:
+        self._record = record
 
     def _due_command(self, now: float) -> RcCommand | None:
         if self.commands and self.commands[0].t <= now - self.started:
@@ -156,9 +188,14 @@ class Node:
     def _tick(self, now: float, unix_ns: int) -> None:
         runtime = self.runtime
         updater = self.updater
+        recorder = self.recorder
+        if recorder is not None:
+            recorder.begin_tick(runtime.ticks, now, unix_ns)
         # 1. radio in: update frames to the update agent, bundles to the runtime
         if self.radio is not None:
-            for _sender, data in self.radio.poll():
+            for sender, data in self.radio.poll():
+                if recorder is not None:
+                    recorder.radio_in(sender, data)
                 if updater is None or not updater.receive(data):
                     runtime.receive_bundle(data)
         # 2. sensors
@@ -172,15 +209,24 @@ class Node:
         frame = updater.after_step() if updater is not None else None
         if self.radio is not None:
             if out.bundle:  # b"": no counter could be had (the runtime said why)
-                self.radio.send(out.bundle)
+                self._send(out.bundle)
             for relay in runtime.take_relays():  # the operator's commands, passed on once
-                self.radio.send(relay)
+                self._send(relay)
             if frame is not None:
-                self.radio.send(frame)
+                self._send(frame)
         self._save_floors()
         # 5. actuators
         if out.order is not None:
             self.vehicle.execute(out.order, self.frame)
+        if recorder is not None and self._record is not None:
+            recorder.end_tick(self._record, state_digest(runtime.vm), self._tick_log)
+            self._tick_log = []
+
+    def _send(self, data: bytes) -> None:
+        assert self.radio is not None
+        self.radio.send(data)
+        if self.recorder is not None:
+            self.recorder.radio_out(data)
 
     def _save_floors(self) -> None:
         """The neighbours' counters to disk, about once a minute (a failed save is logged:
@@ -283,4 +329,4 @@ class Node:
         }
 
 
-__all__ = ["Node"]
+__all__ = ["FlightRecorder", "Node"]

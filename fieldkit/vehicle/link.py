@@ -73,6 +73,9 @@ class Autopilot(AutopilotCore):
                 f"cannot open the autopilot link {url}: {describe_error(e)}"
             ) from e
         adopt_codec(self._conn, self._mav)
+        #: Taps on the bytes as they cross the port (a recorder): read, and written.
+        self.on_rx: Callable[[bytes], None] | None = None
+        self.on_tx: Callable[[bytes], None] | None = None
 
     @classmethod
     def from_profile(cls, profile: Profile, url: str | None = None, **kwargs: Any) -> Autopilot:
@@ -119,6 +122,8 @@ class Autopilot(AutopilotCore):
             self._link_error(f"write failed: {describe_error(e)}")
             return
         self.bytes_sent += len(buf)
+        if self.on_tx is not None:
+            self.on_tx(bytes(buf))
 
     # ------------------------------------------------------------------ the loop
 
@@ -154,6 +159,8 @@ class Autopilot(AutopilotCore):
             if isinstance(data, str):  # some pymavlink transports return "" or str
                 data = data.encode("latin-1")
             total += len(data)
+            if self.on_rx is not None:
+                self.on_rx(data)
             handled += self.receive_data(data)
             if fd is None:
                 break  # no descriptor: cannot tell "more" from "no more"; next poll reads on
