@@ -393,6 +393,38 @@ class AutopilotCore:
         head = (self._active,) if self._active is not None else ()
         return head + tuple(self._queue)
 
+    def time_state(self) -> dict[str, object]:
+        """Every clock reading the core keeps (and the commands still pending): what a replay
+        restores after feeding the start-up bytes, so its ticks run on the same times."""
+        t = self.telemetry
+        return {
+            "t0": self._t0,
+            "last_hb_sent": self._last_hb_sent,
+            "last_heartbeat": t.last_heartbeat,
+            "last_message": t.last_message,
+            "statustexts": [[at, text] for at, text in self._statustexts],
+            "pending_commands": len(self._queue) + (self._active is not None),
+        }
+
+    def set_time_state(self, state: dict[str, object]) -> None:
+        """Restore the clock readings of `time_state` (pending commands are not restored)."""
+
+        def num(key: str) -> float | None:
+            v = state.get(key)
+            return float(v) if isinstance(v, int | float) else None
+
+        t0 = num("t0")
+        if t0 is not None:
+            self._t0 = t0
+        self._last_hb_sent = num("last_hb_sent")
+        self.telemetry.last_heartbeat = num("last_heartbeat")
+        self.telemetry.last_message = num("last_message")
+        texts = state.get("statustexts")
+        if isinstance(texts, list):
+            self._statustexts.clear()
+            for at, text in texts:
+                self._statustexts.append((float(at), str(text)))
+
     def heartbeat_age(self) -> float:
         """Seconds since the last vehicle heartbeat (infinity before the first)."""
         last = self.telemetry.last_heartbeat

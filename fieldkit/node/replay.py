@@ -1,0 +1,409 @@
+"""Replay a recorded flight into a fresh node through a loopback serial, and compare.
+
+`replay(flight)` stands a new `Node` up exactly as the recorded one was (profile, script,
+seed, globals, commands, home, start time) with its autopilot link on a real pseudo-terminal
+pair: the replay writes the recorded autopilot bytes into the master end, tick by tick, and
+the node reads them through pyserial as it would a UART. Its radio hands in the recorded
+frames of each tick, its clock gives each tick's recorded time (`TickClock`), and then the
+replay compares what the node did with what was recorded:
+
+    autopilot   every MAVLink message the node wrote, decoded, field by field
+    radio       every frame sent, byte for byte
+    state       the script-state digest after each tick (and BVMSTATE)
+
+and stops at the first divergence. What it takes for a node to replay exactly
+(docs/recording.md#determinism): one clock reading per tick, seeds from the recording, the
+same start-up bytes, and the autopilot core's clock readings at the start of the loop
+(`AutopilotCore.time_state`), restored after the start-up bytes are fed. The start-up's own
+writes (stream requests, heartbeats while waiting) are not compared: how many there are
+depends on how long the vehicle took to answer.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import math
+import os
+import struct
+import tempfile
+import termios
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from pymavlink.dialects.v20 import all as mavlink2
+
+import bvm
+from fieldkit.errors import FieldkitError
+from fieldkit.node.autopilot_port import MavlinkAutopilot
+from fieldkit.node.clock import TickClock
+from fieldkit.node.node import Node
+from fieldkit.record.flight import Flight, FlightRecorder, FlightTick
+from fieldkit.robot.profiles import Profile, load_profile
+from fieldkit.robot.rc import RcCommand
+from fieldkit.update.release import Release
+from fieldkit.vehicle.link import Autopilot
+from fieldkit.vehicle.pty import open_pty
+
+#: How long (real seconds) to wait for bytes written into the pty to reach the node's end.
+DELIVERY_TIMEOUT_S = 10.0
+
+
+class ReplayError(FieldkitError):
+    """A flight that cannot be replayed: what is missing or wrong, and where."""
+
+
+@dataclass(frozen=True)
+class Divergence:
+    """The first place the replay did something else: tick, channel, expected, got."""
+
+    tick: int
+    channel: str
+    expected: str
+    got: str
+
+    def __str__(self) -> str:
+        """One line for the terminal."""
+        return f"tick {self.tick}, {self.channel}: expected {self.expected}, got {self.got}"
+
+
+@dataclass
+class ReplayReport:
+    """What a replay verified, and where it diverged (None: identical)."""
+
+    ticks: int = 0
+    messages: int = 0  # MAVLink messages to the autopilot compared
+    frames: int = 0  # radio frames compared
+    digests: int = 0  # script-state digests compared
+    divergence: Divergence | None = None
+
+
+class ReplayClock(TickClock):
+    """A TickClock whose ticks begin at the recorded times; between ticks it stands at the
+    last of them (the start-up reads `before`)."""
+
+    def __init__(self, before: float) -> None:
+        super().__init__(lambda: self._at, lambda: self._unix)
+        self._at = before
+        self._unix = 0
+        self._next: tuple[float, int] | None = None
+
+    def set_next(self, clock_s: float, unix_ns: int) -> None:
+        """The time of the tick about to begin."""
+        self._next = (clock_s, unix_ns)
+
+    def begin_tick(self) -> float:
+        """Begin the tick at its recorded time."""
+        if self._next is not None:
+            self._at, self._unix = self._next
+            self._next = None
+        return super().begin_tick()
+
+
+class ReplayRadio:
+    """The node's radio in a replay: hands in each tick's recorded frames, keeps what is sent."""
+
+    def __init__(self) -> None:
+        self.inbox: list[tuple[int, bytes]] = []
+        self.sent: list[bytes] = []
+        self.stats: Counter[str] = Counter()
+
+    def poll(self) -> list[tuple[int, bytes]]:
+        """This tick's recorded frames."""
+        frames, self.inbox = self.inbox, []
+        return frames
+
+    def send(self, data: bytes) -> None:
+        """A frame the node sends (the recorder keeps it for the comparison)."""
+        self.sent.append(bytes(data))
+
+    def close(self) -> None:
+        """Nothing to close."""
+
+
+def _profile(text: str) -> Profile:
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "recorded.toml"
+        path.write_text(text, encoding="utf-8")
+        return load_profile(path)
+
+
+def _in_queue(fd: int) -> int:
+    """Bytes waiting to be read on a tty descriptor (TIOCINQ)."""
+    return int(struct.unpack("i", fcntl.ioctl(fd, termios.TIOCINQ, b"\0\0\0\0"))[0])
+
+
+class _Line:
+    """The replay's end of the loopback serial: writes the recorded bytes, drains the node's."""
+
+    def __init__(self, master: int, slave_fd: int) -> None:
+        self.master = master
+        self.slave_fd = slave_fd
+
+    def feed(self, chunks: Sequence[bytes]) -> int:
+        """Write `chunks` into the line and wait until the node's end holds them all."""
+        total = 0
+        for chunk in chunks:
+            view = memoryview(chunk)
+            while view:
+                try:
+                    n = os.write(self.master, view)
+                except BlockingIOError:
+                    self.drain()
+                    time.sleep(0.001)
+                    continue
+                view = view[n:]
+                total += n
+        return total
+
+    def wait_delivered(self, expected: int) -> bool:
+        """Whether the node's end holds `expected` unread bytes (waiting for the kernel)."""
+        deadline = time.monotonic() + DELIVERY_TIMEOUT_S
+        while _in_queue(self.slave_fd) < expected:
+            if time.monotonic() > deadline:
+                return False
+            self.drain()
+            time.sleep(0.0005)
+        return True
+
+    def drain(self) -> None:
+        """Read and drop what the node wrote (the recorder's tap has it already)."""
+        while True:
+            try:
+                if not os.read(self.master, 65536):
+                    return
+            except (BlockingIOError, OSError):
+                return
+
+
+def _messages(chunks: Sequence[bytes]) -> list[dict[str, object]]:
+    """The MAVLink messages in a byte stream, as field dicts (header fields left out: the
+    sequence number counts start-up writes too)."""
+    parser = mavlink2.MAVLink(None)
+    parser.robust_parsing = True
+    out: list[dict[str, object]] = []
+    for chunk in chunks:
+        for m in parser.parse_buffer(chunk) or []:
+            if m.get_type() == "BAD_DATA":
+                continue
+            out.append(m.to_dict())
+    return out
+
+
+def _same(a: object, b: object) -> bool:
+    """Field equality in which a NaN equals a NaN (MAVLink uses NaN for "not set")."""
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
+def _compare(expected: FlightTick, got: FlightTick, report: ReplayReport) -> Divergence | None:
+    """The first difference between a recorded tick and its replay, counting what matched."""
+    k = expected.tick
+    want, have = _messages(expected.autopilot_tx), _messages(got.autopilot_tx)
+    for i, (a, b) in enumerate(zip(want, have, strict=False)):
+        diff = sorted(f for f in set(a) | set(b) if not _same(a.get(f), b.get(f)))
+        if diff:
+            return Divergence(
+                k, f"autopilot message {i + 1} of the tick ({a.get('mavpackettype')})",
+                f"{ {f: a.get(f) for f in diff} }", f"{ {f: b.get(f) for f in diff} }",
+            )  # fmt: skip
+        report.messages += 1
+    if len(want) != len(have):
+        extra = have[len(want) :] or want[len(have) :]
+        names = ", ".join(str(m.get("mavpackettype")) for m in extra[:5])
+        return Divergence(
+            k, "autopilot messages", f"{len(want)} messages", f"{len(have)} ({names} ...)"
+        )
+    for i, (sent, again) in enumerate(zip(expected.radio_out, got.radio_out, strict=False)):
+        if sent != again:
+            at = next(
+                (j for j, (x, y) in enumerate(zip(sent, again, strict=False)) if x != y), None
+            )
+            where = f"byte {at}" if at is not None else "the length"
+            return Divergence(
+                k, f"radio frame {i + 1} of the tick",
+                f"{len(sent)} bytes {sent.hex()}", f"{len(again)} bytes, differing at {where}: "
+                f"{again.hex()}",
+            )  # fmt: skip
+        report.frames += 1
+    if len(expected.radio_out) != len(got.radio_out):
+        return Divergence(
+            k, "radio frames", f"{len(expected.radio_out)} frames", f"{len(got.radio_out)}"
+        )
+    if expected.state != got.state:
+        return Divergence(k, "script state (BVMSTATE)", repr(expected.state), repr(got.state))
+    if expected.digest != got.digest:
+        return Divergence(
+            k, "script state digest", expected.digest.hex()[:16], got.digest.hex()[:16]
+        )
+    report.digests += 1
+    return None
+
+
+def recording_meta(
+    node: Node,
+    link: Autopilot,
+    *,
+    script_name: str,
+    seed: int,
+    globals_: dict[str, object],
+    commands: Sequence[RcCommand],
+) -> dict[str, object]:
+    """What a recording's meta must hold for `replay` (call it after the node is built and
+    before its first tick): the node's identity and options, its home and start time, and
+    the autopilot core's clock readings as the loop begins."""
+    frame = node.frame
+    return {
+        "robot_id": node.robot_id,
+        "seed": seed,
+        "script_name": script_name,
+        "globals": dict(globals_),
+        "commands": [c.text() for c in commands],
+        "home": [frame.lat, frame.lon, frame.alt],
+        "started_s": node.started,
+        "core_time": link.time_state(),
+        "loop_rate_hz": node.profile.node.loop_rate_hz,
+        "radio": node.radio is not None,
+    }
+
+
+def replay(
+    flight: Flight,
+    *,
+    program: bvm.Program | None = None,
+    speed: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> ReplayReport:
+    """Replay `flight` into a fresh node (another `program`: the regression test of a
+    change) at `speed` times the recorded pace (None: as fast as it goes); the report says
+    what was verified and the first divergence. ReplayError if the flight lacks something."""
+    meta = flight.meta
+    try:
+        robot_id = int(meta["robot_id"])  # type: ignore[call-overload]
+        seed = int(meta.get("seed", 0))  # type: ignore[call-overload]
+        home = tuple(float(x) for x in meta["home"])  # type: ignore[attr-defined]
+        started = float(meta["started_s"])  # type: ignore[arg-type]
+        core_time = dict(meta["core_time"])  # type: ignore[call-overload]
+        globals_ = dict(meta.get("globals", {}))  # type: ignore[call-overload]
+        commands = [RcCommand.parse(str(c)) for c in meta.get("commands", [])]  # type: ignore[attr-defined]
+    except (KeyError, TypeError, ValueError) as e:
+        raise ReplayError(f"the recording's meta lacks what a replay needs: {e}") from None
+    if len(home) != 3:
+        raise ReplayError("the recording's meta: home is not (lat, lon, alt)")
+    profile = _profile(flight.profile_toml)
+    if program is None:
+        program = Release(flight.bo, flight.bdb, flight.bpos).program(
+            str(meta.get("script_name", "<recorded>"))
+        )
+    pty = open_pty()
+    clock = ReplayClock(before=started)
+    try:
+        link = Autopilot.from_profile(profile, pty.slave_path, clock=clock.now)
+        line = _Line(pty.master, pty.slave_fd)
+        try:
+            return _run(flight, profile, program, robot_id, seed, home, commands, globals_,
+                        core_time, link, line, clock, speed, progress)  # fmt: skip
+        finally:
+            link.close()
+    finally:
+        pty.close()
+
+
+def _run(
+    flight: Flight,
+    profile: Profile,
+    program: bvm.Program,
+    robot_id: int,
+    seed: int,
+    home: tuple[float, ...],
+    commands: list[RcCommand],
+    globals_: dict[str, object],
+    core_time: dict[str, object],
+    link: Autopilot,
+    line: _Line,
+    clock: ReplayClock,
+    speed: float | None,
+    progress: Callable[[int, int], None] | None,
+) -> ReplayReport:
+    report = ReplayReport()
+    got: list[FlightTick] = []
+    recorder = FlightRecorder(
+        Flight(meta={}, profile_toml="", bo=b""), keep=False, on_tick=got.append
+    )
+    consumed = 0
+
+    def counted(data: bytes) -> None:
+        nonlocal consumed
+        consumed += len(data)
+        recorder.autopilot_rx(data)
+
+    link.on_rx, link.on_tx = counted, recorder.autopilot_tx
+    # Start-up: the same bytes, read the same way; then the core's clock readings as they
+    # were when the recorded loop began.
+    expected = line.feed(flight.startup_rx)
+    deadline = time.monotonic() + DELIVERY_TIMEOUT_S
+    while consumed < expected:
+        link.poll(0.01)
+        line.drain()
+        if time.monotonic() > deadline:
+            raise ReplayError(
+                f"the start-up bytes did not come through the loopback serial "
+                f"({consumed} of {expected} in {DELIVERY_TIMEOUT_S:g} s)"
+            )
+    link.drain_events()
+    link.set_time_state(core_time)
+    lat, lon, alt = home
+    radio = ReplayRadio()
+    node = Node(
+        profile,
+        program,
+        robot_id,
+        MavlinkAutopilot(link, (lat, lon, alt)),
+        radio if flight.meta.get("radio", True) else None,
+        home=(lat, lon, alt),
+        commands=commands,
+        clock=clock,
+        out=lambda _line: None,
+        seed=seed,
+        globals_=globals_,
+        recorder=recorder,
+    )
+    total = len(flight.ticks)
+    wall0 = time.monotonic()
+    for n, tick in enumerate(flight.ticks):
+        if speed is not None and n:
+            ahead = (tick.clock_s - flight.ticks[0].clock_s) / speed - (time.monotonic() - wall0)
+            if ahead > 0:
+                time.sleep(ahead)
+        radio.inbox = list(tick.radio_in)
+        consumed = 0
+        want = line.feed(tick.autopilot_rx)
+        if not line.wait_delivered(want):
+            raise ReplayError(f"tick {tick.tick}: the recorded autopilot bytes did not arrive")
+        clock.set_next(tick.clock_s, tick.unix_ns)
+        node.tick()
+        line.drain()
+        report.ticks += 1
+        divergence = _compare(tick, got.pop(), report)
+        if divergence is not None:
+            report.divergence = divergence
+            break
+        if progress is not None:
+            progress(n + 1, total)
+    return report
+
+
+__all__ = [
+    "Divergence",
+    "recording_meta",
+    "ReplayClock",
+    "ReplayError",
+    "ReplayRadio",
+    "ReplayReport",
+    "replay",
+]
