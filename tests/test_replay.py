@@ -11,6 +11,7 @@ import fcntl
 import struct
 import termios
 import time
+from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import all as mavlink2
@@ -20,10 +21,16 @@ import bvm
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.clock import TickClock
 from fieldkit.node.node import Node
-from fieldkit.node.replay import ReplayRadio, recording_meta, replay
+from fieldkit.node.replay import ReplayError, ReplayRadio, recording_meta, replay
+from fieldkit.node.security import node_commands, node_security
 from fieldkit.record.flight import Flight, FlightRecorder, FlightTick
+from fieldkit.robot.bundle import encode_fields
+from fieldkit.robot.bundle_auth import MemoryCounter, bundle_key
+from fieldkit.robot.link_security import LinkSecurity
+from fieldkit.robot.operator_command import CommandSigner
 from fieldkit.robot.profiles import load_profile
 from fieldkit.robot.rc import RcCommand
+from fieldkit.update.keys import init_keys, load_robot_keys, load_signing_key
 from fieldkit.update.release import Release
 from fieldkit.vehicle.link import Autopilot
 from fieldkit.vehicle.pty import open_pty
@@ -48,8 +55,9 @@ def _queued(fd: int) -> int:
     return int(struct.unpack("i", fcntl.ioctl(fd, termios.TIOCINQ, b"\0\0\0\0"))[0])
 
 
-def record_flight(src: str, seconds: float) -> Flight:
-    """Fly `src` on a simulated Solo, recorded, `seconds` of ticks at 10 Hz."""
+def record_flight(src: str, seconds: float, keys_dir: Path | None = None) -> Flight:
+    """Fly `src` on a simulated Solo, recorded, `seconds` of ticks at 10 Hz; with
+    `keys_dir`, signed, hearing robot 2's sealed bundles, a forgery, and the operator."""
     profile = load_profile("solo")
     assert profile.path is not None
     program = bvm.compile_source(src, "fly.bzz")
@@ -87,16 +95,36 @@ def record_flight(src: str, seconds: float) -> Flight:
         t = link.wait_position(10.0, idle=idle, poll_interval=0.0)
         home = (t.lat, t.lon, 0.0)
         commands = [RcCommand(1.0, 1, 22)]
+        radio = ReplayRadio()
+        extra: dict[str, object] = {}
+        neighbour = None
+        if keys_dir is not None:
+            keys = load_robot_keys(keys_dir)
+            state = keys_dir.parent / "state"
+            extra = {
+                "security": node_security(1, "signed", keys, state, lambda _l: None),
+                "command_gate": node_commands(1, keys, state),
+            }
+            neighbour = LinkSecurity.signed_with(2, bundle_key(keys.swarm_key), MemoryCounter())
+            signer = CommandSigner(load_signing_key(keys_dir), keys_dir / "command.seq")
         node = Node(
-            # A radio that hears nothing and keeps what is sent: the bundles get recorded.
-            profile, program, 1, MavlinkAutopilot(link, home), ReplayRadio(),  # type: ignore[arg-type]
+            # A radio that hears what the test hands it and keeps what is sent.
+            profile, program, 1, MavlinkAutopilot(link, home), radio,  # type: ignore[arg-type]
             home=home, commands=commands, clock=clock, out=lambda _l: None, seed=7,
-            recorder=recorder,
+            recorder=recorder, **extra,  # type: ignore[arg-type]
         )  # fmt: skip
         flight.meta = recording_meta(
             node, link, script_name="fly.bzz", seed=7, globals_={}, commands=commands
         )
-        for _ in range(round(seconds * 10)):
+        for k in range(round(seconds * 10)):
+            if neighbour is not None:
+                air = encode_fields(2, (), RIG_HOME[0], RIG_HOME[1], 0.0, k)
+                heard = [(2, neighbour.seal(air))]
+                if k == 40:
+                    heard.append((2, heard[0][1][:-1] + b"\x00"))  # forged: dropped
+                if k == 60:
+                    heard.append((200, signer.sign(1, 900)))  # the operator's command
+                radio.inbox = heard
             node.tick()
             sim.step(0.1)
             now[0] += 0.1
@@ -163,3 +191,20 @@ def test_an_edited_recording_is_caught(flight: Flight) -> None:
     edited.ticks[k].digest = bytes(32)
     d = replay(edited).divergence
     assert d is not None and d.tick == k and d.channel == "script state digest"
+
+
+def test_a_signed_flight_replays_with_the_robots_keys_and_only_with_them(tmp_path: Path) -> None:
+    init_keys(tmp_path / "keys")
+    flight = record_flight(FLY, 8.0, tmp_path / "keys")
+    assert flight.meta["security"] == "signed" and "swarm" not in str(flight.meta).lower()
+    heard = flight.ticks[60]
+    assert any(sender == 200 for sender, _ in heard.radio_in)
+    assert heard.radio_out and all(len(f) % 8 == 0 for f in heard.radio_out)
+    report = replay(flight, keys=load_robot_keys(tmp_path / "keys"))
+    assert report.divergence is None, report.divergence
+    assert report.frames >= 80 + 1  # every sealed bundle, and the command relayed once
+    with pytest.raises(ReplayError, match="--keys"):
+        replay(flight)
+    init_keys(tmp_path / "other")
+    with pytest.raises(ReplayError, match="swarm key"):
+        replay(flight, keys=load_robot_keys(tmp_path / "other"))

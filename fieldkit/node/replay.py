@@ -41,8 +41,12 @@ from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.clock import TickClock
 from fieldkit.node.node import Node
 from fieldkit.record.flight import Flight, FlightRecorder, FlightTick
+from fieldkit.robot.bundle_auth import MemoryCounter, Sealer, Verifier, bundle_key
+from fieldkit.robot.link_security import LinkSecurity
+from fieldkit.robot.operator_command import CommandGate
 from fieldkit.robot.profiles import Profile, load_profile
 from fieldkit.robot.rc import RcCommand
+from fieldkit.update.keys import RobotKeys
 from fieldkit.update.release import Release
 from fieldkit.vehicle.link import Autopilot
 from fieldkit.vehicle.pty import open_pty
@@ -269,19 +273,87 @@ def recording_meta(
         "core_time": link.time_state(),
         "loop_rate_hz": node.profile.node.loop_rate_hz,
         "radio": node.radio is not None,
-    }
+    } | _security_meta(node)
+
+
+def _security_meta(node: Node) -> dict[str, object]:
+    """The security state a replay starts from: the mode, the key's fingerprint (never the
+    key), the next counter, the neighbours' floors, the last operator command acted on."""
+    runtime = node.runtime
+    security = runtime.security
+    out: dict[str, object] = {"security": None if security is None else security.mode}
+    if security is not None and security.signed:
+        assert security.sealer is not None and security.verifier is not None
+        out["key_fingerprint"] = security.sealer.key.fingerprint
+        out["counter_start"] = getattr(security.sealer.counters, "upcoming", 1)
+        out["floors"] = {str(s): c for s, c in security.verifier.floors().items()}
+    if runtime.commands is not None:
+        out["command_last_acted"] = runtime.commands.last_acted
+    return out
+
+
+class _RecordedSeq:
+    """A command gate's store in a replay: starts where the recording did, saves nowhere."""
+
+    def __init__(self, last: int) -> None:
+        self.last = last
+
+    def load(self) -> int:
+        """The recorded last sequence number acted on."""
+        return self.last
+
+    def save(self, n: int) -> None:
+        """Nothing to keep: a replay is not a flight."""
+
+
+def _replay_security(
+    meta: dict[str, object], robot_id: int, keys: RobotKeys | None
+) -> tuple[LinkSecurity | None, CommandGate | None]:
+    """The recorded node's security, rebuilt from its meta and `keys`."""
+    mode = meta.get("security")
+    gate = None
+    if "command_last_acted" in meta:
+        if keys is None:
+            raise ReplayError(
+                "the recorded node checked operator commands with its keys: give --keys DIR"
+            )
+        last = int(meta["command_last_acted"])  # type: ignore[call-overload]
+        gate = CommandGate(robot_id, keys.operator_pub, _RecordedSeq(last))
+    if mode is None:
+        return None, gate
+    if mode != "signed":
+        return LinkSecurity(robot_id, "none"), gate
+    if keys is None:
+        raise ReplayError("the flight was signed: give the robot's keys, --keys DIR")
+    key = bundle_key(keys.swarm_key)
+    if key.fingerprint != meta.get("key_fingerprint"):
+        raise ReplayError(
+            f"the flight was signed under swarm key {meta.get('key_fingerprint')}; "
+            f"the keys given are {key.fingerprint}\nhint: give the robot's own --keys DIR"
+        )
+    floors = {int(s): int(c) for s, c in dict(meta.get("floors", {})).items()}  # type: ignore[call-overload]
+    start = int(meta.get("counter_start", 1))  # type: ignore[call-overload]
+    security = LinkSecurity(
+        robot_id,
+        "signed",
+        sealer=Sealer(robot_id, key, MemoryCounter(start)),
+        verifier=Verifier(key, floors=floors),
+    )
+    return security, gate
 
 
 def replay(
     flight: Flight,
     *,
     program: bvm.Program | None = None,
+    keys: RobotKeys | None = None,
     speed: float | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> ReplayReport:
     """Replay `flight` into a fresh node (another `program`: the regression test of a
-    change) at `speed` times the recorded pace (None: as fast as it goes); the report says
-    what was verified and the first divergence. ReplayError if the flight lacks something."""
+    change) at `speed` times the recorded pace (None: as fast as it goes), with the robot's
+    `keys` if it was signed; the report says what was verified and the first divergence.
+    ReplayError if the flight lacks something."""
     meta = flight.meta
     try:
         robot_id = int(meta["robot_id"])  # type: ignore[call-overload]
@@ -295,6 +367,7 @@ def replay(
         raise ReplayError(f"the recording's meta lacks what a replay needs: {e}") from None
     if len(home) != 3:
         raise ReplayError("the recording's meta: home is not (lat, lon, alt)")
+    security, gate = _replay_security(meta, robot_id, keys)
     profile = _profile(flight.profile_toml)
     if program is None:
         program = Release(flight.bo, flight.bdb, flight.bpos).program(
@@ -307,7 +380,8 @@ def replay(
         line = _Line(pty.master, pty.slave_fd)
         try:
             return _run(flight, profile, program, robot_id, seed, home, commands, globals_,
-                        core_time, link, line, clock, speed, progress)  # fmt: skip
+                        core_time, link, line, clock, speed, progress,
+                        security, gate)  # fmt: skip
         finally:
             link.close()
     finally:
@@ -329,6 +403,8 @@ def _run(
     clock: ReplayClock,
     speed: float | None,
     progress: Callable[[int, int], None] | None,
+    security: LinkSecurity | None,
+    gate: CommandGate | None,
 ) -> ReplayReport:
     report = ReplayReport()
     got: list[FlightTick] = []
@@ -372,6 +448,8 @@ def _run(
         seed=seed,
         globals_=globals_,
         recorder=recorder,
+        security=security,
+        command_gate=gate,
     )
     total = len(flight.ticks)
     wall0 = time.monotonic()

@@ -218,6 +218,11 @@ class MemoryCounter:
             raise ValueError(f"start must be in 1..{MAX_COUNTER}, got {start}")
         self._next = start
 
+    @property
+    def upcoming(self) -> int:
+        """The counter `next()` returns next."""
+        return self._next
+
     def next(self) -> int:
         """The next counter."""
         c = self._next
@@ -486,6 +491,11 @@ class CounterStore:
             self.writes += 1
         self._next = c + 1
         return c
+
+    @property
+    def upcoming(self) -> int:
+        """The counter `next()` returns next (a recording keeps it, for a replay)."""
+        return self._next
 
     @property
     def reserved_end(self) -> int:
