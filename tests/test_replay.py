@@ -208,3 +208,10 @@ def test_a_signed_flight_replays_with_the_robots_keys_and_only_with_them(tmp_pat
     init_keys(tmp_path / "other")
     with pytest.raises(ReplayError, match="swarm key"):
         replay(flight, keys=load_robot_keys(tmp_path / "other"))
+
+
+def test_the_flight_plot_shows_the_flight(flight: Flight, tmp_path: Path) -> None:
+    from fieldkit.record.plot import plot_flight
+
+    path = plot_flight(flight, tmp_path / "flight.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 20_000

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from fieldkit.plotting import figure, save
 from fieldkit.robot.bundle_auth import SEALED_MAX_MSG_SIZE
 from fieldkit.sim.experiments.base import (
     BUNDLE_LIMIT_BYTES,
@@ -18,8 +19,6 @@ from fieldkit.sim.experiments.base import (
 )
 
 if TYPE_CHECKING:
-    from matplotlib.figure import Figure
-
     from fieldkit.sim.experiments.plan import Plan
     from fieldkit.sim.tracks import Tracks
 
@@ -62,32 +61,11 @@ def _band(
     return times, mean, low, high
 
 
-def _figure(
-    rows: int = 1, cols: int = 1, size: tuple[float, float] = (8.0, 4.5)
-) -> tuple[Figure, Any]:
-    """A matplotlib figure on the Agg backend (no display needed, same pixels everywhere)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt.subplots(rows, cols, figsize=size, squeeze=False)
-
-
-def _save(fig: Figure, path: Path) -> None:
-    """Save without the matplotlib version in the metadata, so reruns give the same file."""
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout()
-    fig.savefig(path, dpi=100, metadata={"Software": None})
-    plt.close(fig)
-
-
 def plot_experiment(plan: Plan, results: Sequence[RunResult], path: Path) -> None:
     """The paper's figure: the experiment's metric over time, per cell (mean, min-max band)."""
     e = plan.experiment
     per_robot = e.plots_each_robot()
-    fig, axes = _figure(1, 2 if per_robot else 1, (12.0, 4.5) if per_robot else (8.0, 4.5))
+    fig, axes = figure(1, 2 if per_robot else 1, (12.0, 4.5) if per_robot else (8.0, 4.5))
     ax = axes[0][0]
     for spec, rs in _cells(plan, results):
         times, mean, low, high = _band(rs, e.series)
@@ -131,12 +109,12 @@ def plot_experiment(plan: Plan, results: Sequence[RunResult], path: Path) -> Non
         ax2.grid(alpha=0.3)
         if spec.robots <= 10:
             ax2.legend(fontsize=7, ncol=2)
-    _save(fig, path)
+    save(fig, path)
 
 
 def plot_bytes(plan: Plan, results: Sequence[RunResult], path: Path) -> None:
     """Figure 10: bytes per robot per step on the air (vs the XBee frame) and bundle content."""
-    fig, axes = _figure(2, 1, (8.0, 7.0))
+    fig, axes = figure(2, 1, (8.0, 7.0))
     top, bottom = axes[0][0], axes[1][0]
     for spec, rs in _cells(plan, results):
         times, mean, _, _ = _band(rs, "air_bytes_mean")
@@ -163,7 +141,7 @@ def plot_bytes(plan: Plan, results: Sequence[RunResult], path: Path) -> None:
         ax.set_ylim(0, XBEE_FRAME_BYTES + 20)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="upper right")
-    _save(fig, path)
+    save(fig, path)
 
 
 #: Tracks of swarms larger than this are drawn as points only (lines would be a smear).
@@ -173,7 +151,7 @@ _TRACK_LINES_MAX = 200
 def plot_tracks(tracks: Tracks, path: Path, title: str) -> None:
     """A run's plot.png: every robot's track, coloured by its state (or flight mode) at each
     sample, with a ring where it started; below, the radio load over time."""
-    fig, axes = _figure(2, 1, (8.0, 10.0))
+    fig, axes = figure(2, 1, (8.0, 10.0))
     ax, load = axes[0][0], axes[1][0]
     samples = tracks.samples
     if len(tracks.ids) <= _TRACK_LINES_MAX:
@@ -228,7 +206,7 @@ def plot_tracks(tracks: Tracks, path: Path, title: str) -> None:
     load.set_ylim(bottom=0)
     load.grid(alpha=0.3)
     load.legend(fontsize=7, loc="upper right")
-    _save(fig, path)
+    save(fig, path)
 
 
 def _state_colours(names: list[str]) -> dict[str, Any]:
