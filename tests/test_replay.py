@@ -215,3 +215,49 @@ def test_the_flight_plot_shows_the_flight(flight: Flight, tmp_path: Path) -> Non
 
     path = plot_flight(flight, tmp_path / "flight.png")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 20_000
+
+
+WATCH = """
+function init() { fixes = 0  armed_ticks = 0 }
+function step() {
+  if (pose.position.latitude != 0.0) fixes = fixes + 1
+  if (flight.status == 3) armed_ticks = armed_ticks + 1
+  BVMSTATE = "WATCHING"
+}
+"""
+
+
+def tlog_flight(path: Path, seconds: float) -> Flight:
+    """A real autopilot log as ticks of 10 Hz by its own timestamps (what `bag from-tlog`
+    makes): no node outputs, no script, no profile."""
+    data = path.read_bytes()
+    ticks: list[FlightTick] = []
+    i, t0 = 0, None
+    while i + 10 < len(data):
+        stamp = int.from_bytes(data[i : i + 8], "big")
+        j = i + 8
+        n = data[j + 1] + (8 if data[j] == 0xFE else 12 + (13 if data[j + 2] & 1 else 0))
+        t0 = stamp if t0 is None else t0
+        k = (stamp - t0) // 100_000
+        if k >= seconds * 10:
+            break
+        while len(ticks) <= k:
+            ticks.append(FlightTick(len(ticks), 10.0 + len(ticks) / 10, 0))
+        ticks[k].autopilot_rx.append(data[j : j + n])
+        i = j + n
+    return Flight({}, "", b"", ticks=ticks)
+
+
+def test_a_real_autopilot_log_drives_a_node_without_verify() -> None:
+    log = Path(__file__).parent / "data" / "tlogs" / "quad-flight-arducopter.tlog"
+    flight = tlog_flight(log, 100.0)  # the GPS gets its fix at 66 s
+    with pytest.raises(ReplayError, match="no node outputs"):
+        replay(flight)
+    with pytest.raises(ReplayError, match="--profile"):
+        replay(flight, verify=False)
+    program = bvm.compile_source(WATCH, "watch.bzz")
+    report = replay(flight, program=program, profile=load_profile("solo"), verify=False)
+    assert report.divergence is None and 300 < report.ticks < 400  # from the fix on
+    last = report.replayed[-1]
+    assert last.state == "WATCHING" and len(report.replayed) == report.ticks
+    assert abs(float(last.sensors["lat"]) - -35.36) < 0.1  # the real field, CMAC

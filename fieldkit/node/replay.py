@@ -30,7 +30,7 @@ import termios
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from pymavlink.dialects.v20 import all as mavlink2
@@ -82,6 +82,8 @@ class ReplayReport:
     frames: int = 0  # radio frames compared
     digests: int = 0  # script-state digests compared
     divergence: Divergence | None = None
+    #: What the node did, tick by tick, when not verifying (an autopilot log's replay).
+    replayed: list[FlightTick] = field(default_factory=list)
 
 
 class ReplayClock(TickClock):
@@ -346,134 +348,192 @@ def replay(
     flight: Flight,
     *,
     program: bvm.Program | None = None,
+    profile: Profile | None = None,
     keys: RobotKeys | None = None,
+    verify: bool = True,
+    robot_id: int | None = None,
     speed: float | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> ReplayReport:
-    """Replay `flight` into a fresh node (another `program`: the regression test of a
-    change) at `speed` times the recorded pace (None: as fast as it goes), with the robot's
-    `keys` if it was signed; the report says what was verified and the first divergence.
-    ReplayError if the flight lacks something."""
+    """Replay `flight` into a fresh node and, if `verify`, compare tick by tick.
+
+    `program` replaces the recorded script (the regression test of a change), `profile` the
+    recorded profile; `keys` are the robot's, for a signed flight; `speed` paces the ticks
+    at that many times the recorded pace (None: as fast as they go). A flight without node
+    outputs (an autopilot log converted to a bag) replays without `verify`, given a
+    `program` and a `profile`: the node starts once the log has given it a heartbeat and a
+    position, and the report keeps what it did (`replayed`). ReplayError if the flight lacks
+    what this needs."""
     meta = flight.meta
-    try:
-        robot_id = int(meta["robot_id"])  # type: ignore[call-overload]
-        seed = int(meta.get("seed", 0))  # type: ignore[call-overload]
-        home = tuple(float(x) for x in meta["home"])  # type: ignore[attr-defined]
-        started = float(meta["started_s"])  # type: ignore[arg-type]
-        core_time = dict(meta["core_time"])  # type: ignore[call-overload]
-        globals_ = dict(meta.get("globals", {}))  # type: ignore[call-overload]
-        commands = [RcCommand.parse(str(c)) for c in meta.get("commands", [])]  # type: ignore[attr-defined]
-    except (KeyError, TypeError, ValueError) as e:
-        raise ReplayError(f"the recording's meta lacks what a replay needs: {e}") from None
-    if len(home) != 3:
-        raise ReplayError("the recording's meta: home is not (lat, lon, alt)")
-    security, gate = _replay_security(meta, robot_id, keys)
-    profile = _profile(flight.profile_toml)
+    node_flight = "core_time" in meta
+    if verify and not node_flight:
+        raise ReplayError(
+            "the bag holds no node outputs to compare (an autopilot log?)\n"
+            "hint: replay it without --verify, with --script FILE.bzz and --profile NAME"
+        )
+    if profile is None:
+        if not flight.profile_toml:
+            raise ReplayError("the bag holds no device profile\nhint: give --profile NAME")
+        profile = _profile(flight.profile_toml)
     if program is None:
+        if not flight.bo:
+            raise ReplayError("the bag holds no script\nhint: give --script FILE.bzz")
         program = Release(flight.bo, flight.bdb, flight.bpos).program(
             str(meta.get("script_name", "<recorded>"))
         )
+    try:
+        rid = int(meta.get("robot_id", 1) if robot_id is None else robot_id)  # type: ignore[call-overload]
+        seed = int(meta.get("seed", 0))  # type: ignore[call-overload]
+        globals_ = dict(meta.get("globals", {}))  # type: ignore[call-overload]
+        commands = [RcCommand.parse(str(c)) for c in meta.get("commands", [])]  # type: ignore[attr-defined]
+        start = _Start.of(meta) if node_flight else None
+    except (KeyError, TypeError, ValueError) as e:
+        raise ReplayError(f"the recording's meta lacks what a replay needs: {e}") from None
+    security, gate = _replay_security(meta, rid, keys)
+    first = flight.ticks[0].clock_s if flight.ticks else 0.0
+    clock = ReplayClock(before=first if start is None else start.started_s)
     pty = open_pty()
-    clock = ReplayClock(before=started)
     try:
         link = Autopilot.from_profile(profile, pty.slave_path, clock=clock.now)
-        line = _Line(pty.master, pty.slave_fd)
         try:
-            return _run(flight, profile, program, robot_id, seed, home, commands, globals_,
-                        core_time, link, line, clock, speed, progress,
-                        security, gate)  # fmt: skip
+            run = _Replay(flight, link, _Line(pty.master, pty.slave_fd), clock, verify)
+            ticks = run.start(start)
+            node = Node(
+                profile,
+                program,
+                rid,
+                MavlinkAutopilot(link, run.home),
+                run.radio if meta.get("radio", True) else None,
+                home=run.home,
+                commands=commands,
+                clock=clock,
+                out=lambda _line: None,
+                seed=seed,
+                globals_=globals_,
+                recorder=run.recorder,
+                security=security,
+                command_gate=gate,
+            )
+            return run.ticks(node, ticks, speed, progress)
         finally:
             link.close()
     finally:
         pty.close()
 
 
-def _run(
-    flight: Flight,
-    profile: Profile,
-    program: bvm.Program,
-    robot_id: int,
-    seed: int,
-    home: tuple[float, ...],
-    commands: list[RcCommand],
-    globals_: dict[str, object],
-    core_time: dict[str, object],
-    link: Autopilot,
-    line: _Line,
-    clock: ReplayClock,
-    speed: float | None,
-    progress: Callable[[int, int], None] | None,
-    security: LinkSecurity | None,
-    gate: CommandGate | None,
-) -> ReplayReport:
-    report = ReplayReport()
-    got: list[FlightTick] = []
-    recorder = FlightRecorder(
-        Flight(meta={}, profile_toml="", bo=b""), keep=False, on_tick=got.append
-    )
-    consumed = 0
+@dataclass(frozen=True)
+class _Start:
+    """Where a recorded node's loop began: its home, its start time, its core's clocks."""
 
-    def counted(data: bytes) -> None:
-        nonlocal consumed
-        consumed += len(data)
-        recorder.autopilot_rx(data)
+    home: tuple[float, float, float]
+    started_s: float
+    core_time: dict[str, object]
 
-    link.on_rx, link.on_tx = counted, recorder.autopilot_tx
-    # Start-up: the same bytes, read the same way; then the core's clock readings as they
-    # were when the recorded loop began.
-    expected = line.feed(flight.startup_rx)
-    deadline = time.monotonic() + DELIVERY_TIMEOUT_S
-    while consumed < expected:
-        link.poll(0.01)
-        line.drain()
-        if time.monotonic() > deadline:
-            raise ReplayError(
-                f"the start-up bytes did not come through the loopback serial "
-                f"({consumed} of {expected} in {DELIVERY_TIMEOUT_S:g} s)"
-            )
-    link.drain_events()
-    link.set_time_state(core_time)
-    lat, lon, alt = home
-    radio = ReplayRadio()
-    node = Node(
-        profile,
-        program,
-        robot_id,
-        MavlinkAutopilot(link, (lat, lon, alt)),
-        radio if flight.meta.get("radio", True) else None,
-        home=(lat, lon, alt),
-        commands=commands,
-        clock=clock,
-        out=lambda _line: None,
-        seed=seed,
-        globals_=globals_,
-        recorder=recorder,
-        security=security,
-        command_gate=gate,
-    )
-    total = len(flight.ticks)
-    wall0 = time.monotonic()
-    for n, tick in enumerate(flight.ticks):
-        if speed is not None and n:
-            ahead = (tick.clock_s - flight.ticks[0].clock_s) / speed - (time.monotonic() - wall0)
-            if ahead > 0:
-                time.sleep(ahead)
-        radio.inbox = list(tick.radio_in)
-        consumed = 0
-        want = line.feed(tick.autopilot_rx)
-        if not line.wait_delivered(want):
-            raise ReplayError(f"tick {tick.tick}: the recorded autopilot bytes did not arrive")
-        clock.set_next(tick.clock_s, tick.unix_ns)
-        node.tick()
-        line.drain()
-        report.ticks += 1
-        divergence = _compare(tick, got.pop(), report)
-        if divergence is not None:
-            report.divergence = divergence
-            break
-        if progress is not None:
-            progress(n + 1, total)
-    return report
+    @classmethod
+    def of(cls, meta: dict[str, object]) -> _Start:
+        """From a recording's meta (KeyError, TypeError, ValueError if it lacks them)."""
+        lat, lon, alt = (float(x) for x in meta["home"])  # type: ignore[attr-defined]
+        return cls((lat, lon, alt), float(meta["started_s"]), dict(meta["core_time"]))  # type: ignore[arg-type, call-overload]
+
+
+class _Replay:
+    """One replay's moving parts: the line, the radio, the recorder of what the node does."""
+
+    def __init__(
+        self, flight: Flight, link: Autopilot, line: _Line, clock: ReplayClock, verify: bool
+    ) -> None:
+        self.flight = flight
+        self.link = link
+        self.line = line
+        self.clock = clock
+        self.verify = verify
+        self.radio = ReplayRadio()
+        self.done: list[FlightTick] = []
+        self.recorder = FlightRecorder(
+            Flight(meta={}, profile_toml="", bo=b""), keep=False, on_tick=self.done.append
+        )
+        self.home = (0.0, 0.0, 0.0)
+        self.consumed = 0
+        link.on_rx, link.on_tx = self._rx, self.recorder.autopilot_tx
+
+    def _rx(self, data: bytes) -> None:
+        self.consumed += len(data)
+        self.recorder.autopilot_rx(data)
+
+    def _read_all(self, expected: int, what: str) -> None:
+        """Poll the link until it has read `expected` bytes fed since the count was reset."""
+        deadline = time.monotonic() + DELIVERY_TIMEOUT_S
+        while self.consumed < expected:
+            self.link.poll(0.01)
+            self.line.drain()
+            if time.monotonic() > deadline:
+                raise ReplayError(
+                    f"{what}: the recorded autopilot bytes did not come through the loopback "
+                    f"serial ({self.consumed} of {expected} in {DELIVERY_TIMEOUT_S:g} s)"
+                )
+
+    def start(self, start: _Start | None) -> list[FlightTick]:
+        """Feed the start-up; the ticks left for the node. A recorded node's start-up is its
+        own, then its core's clock readings; an autopilot log's runs until the vehicle has
+        given a heartbeat and a position (those ticks are not the node's)."""
+        link, line, flight = self.link, self.line, self.flight
+        self.consumed = 0
+        self._read_all(line.feed(flight.startup_rx), "start-up")
+        if start is not None:
+            link.drain_events()
+            link.set_time_state(start.core_time)
+            self.home = start.home
+            return flight.ticks
+        for k, tick in enumerate(flight.ticks):
+            t = link.telemetry
+            if t.last_heartbeat is not None and t.lat is not None and t.lon is not None:
+                self.home = (t.lat, t.lon, 0.0)
+                link.drain_events()
+                self.recorder.started = True  # what follows belongs to the node's ticks
+                return flight.ticks[k:]
+            self.consumed = 0
+            self.clock.set_next(tick.clock_s, tick.unix_ns)
+            self.clock.begin_tick()
+            try:
+                self._read_all(line.feed(tick.autopilot_rx), f"tick {tick.tick}")
+            finally:
+                self.clock.end_tick()
+        raise ReplayError("the autopilot log never gives a heartbeat and a GPS position")
+
+    def ticks(
+        self,
+        node: Node,
+        ticks: list[FlightTick],
+        speed: float | None,
+        progress: Callable[[int, int], None] | None,
+    ) -> ReplayReport:
+        """Run the node through `ticks`; compare each with the recording if verifying."""
+        report = ReplayReport()
+        line, clock = self.line, self.clock
+        wall0 = time.monotonic()
+        for n, tick in enumerate(ticks):
+            if speed is not None and n:
+                ahead = (tick.clock_s - ticks[0].clock_s) / speed - (time.monotonic() - wall0)
+                if ahead > 0:
+                    time.sleep(ahead)
+            self.radio.inbox = list(tick.radio_in)
+            want = line.feed(tick.autopilot_rx)
+            if not line.wait_delivered(want):
+                raise ReplayError(f"tick {tick.tick}: the recorded autopilot bytes did not arrive")
+            clock.set_next(tick.clock_s, tick.unix_ns)
+            node.tick()
+            line.drain()
+            report.ticks += 1
+            mine = self.done.pop()
+            if self.verify:
+                report.divergence = _compare(tick, mine, report)
+                if report.divergence is not None:
+                    break
+            else:
+                report.replayed.append(mine)
+            if progress is not None:
+                progress(n + 1, len(ticks))
+        return report
 
 
 __all__ = [
