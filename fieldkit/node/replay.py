@@ -275,6 +275,7 @@ def recording_meta(
         "core_time": link.time_state(),
         "loop_rate_hz": node.profile.node.loop_rate_hz,
         "radio": node.radio is not None,
+        "started_unix_ns": node.tick_clock.wall(),
     } | _security_meta(node)
 
 
