@@ -278,6 +278,7 @@ BASE: dict[str, dict[str, str | list[str]]] = {
     },
     "vehicle-sim": {"profile": "solo", "rate": "0"},
     "sitl": {"robots": "1", "script": "{d}/good.bzz", "out": "{d}/o", "seconds": "0.1"},
+    "replay": {"bag": "{d}/good.bo", "speed": "max"},
     "update": {
         "script": "{d}/good.bzz", "keys": "{d}/keys", "out": "{d}/o/p.patch", "base": "{d}/good.bo",
     },
@@ -319,6 +320,13 @@ def _bad_inputs() -> list[tuple[tuple[str, ...], str, str, int, str]]:
                 cases.append((path, name, "{d}/adir.toml", 1, "adir.toml"))
             elif kind is not Path or name == "include":
                 continue  # (an include directory that does not exist is not searched)
+            elif name == "record":  # a new recording: a path that must not exist yet
+                cases.append((path, name, "{d}/existing.txt", 1, "existing.txt"))
+                cases.append((path, name, "{d}/nodir/flight", 1, "nodir"))
+            elif path == ("replay",) and name == "bag":  # unreadable input to compare: 2
+                cases.append((path, name, "{d}/nope.bzz", 2, "nope.bzz"))
+                cases.append((path, name, "{d}/locked.bzz", 2, "locked.bzz"))
+                cases.append((path, name, "{d}/adir.bzz", 2, "adir.bzz"))
             elif name == "state_dir":  # a directory to create or open
                 cases.append((path, name, "{d}/existing.txt", 1, "existing.txt"))
                 cases.append((path, name, "{d}/lockeddir/s", 1, "lockeddir"))

@@ -31,7 +31,7 @@ from fieldkit.cli.options import (
     security_mode,
     warn_if_insecure,
 )
-from fieldkit.cli.output import out_dir, write_json
+from fieldkit.cli.output import out_dir, write_json, wrote
 
 if TYPE_CHECKING:
     from fieldkit.node.log import NodeLog
@@ -138,6 +138,14 @@ def node_cmd(
         float | None, typer.Option("--seconds", help="Stop after T seconds.")
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write DIR/summary.json.")] = None,
+    record: Annotated[
+        Path | None,
+        typer.Option(
+            "--record",
+            metavar="PATH",
+            help="Record the flight as a rosbag: a directory (ROS 2, MCAP), or PATH.bag (ROS 1).",
+        ),
+    ] = None,
     include: Annotated[
         list[Path] | None, typer.Option("-I", "--include", help="Extra include directory.")
     ] = None,
@@ -204,6 +212,8 @@ def node_cmd(
         raise fail(e) from None
     if out is not None:
         out_dir(out)  # now, not after an hour's run
+    if record is not None:
+        check_record_path(record)
     # The radio first: a missing XBee fails at once, not after the wait for the autopilot.
     link_radio = open_node_radio(prof, radio, rid, say)
     warn_if_insecure(mode)
@@ -227,10 +237,20 @@ def node_cmd(
             keys=robot_keys,
             security=link_security,
             command_gate=gate,
+            record=record,
+            script_name=label,
         )
     finally:
         if link_radio is not None:
             link_radio.close()
+
+
+def check_record_path(path: Path) -> None:
+    """`--record PATH` must be new, in a directory that exists: checked before any device."""
+    if path.exists() or Path(f"{path}_1").exists():
+        raise fail(f"--record {path}: exists already\nhint: record to a new path")
+    if not path.parent.is_dir():
+        raise fail(f"--record {path}: no directory {path.parent}")
 
 
 def load_program(script: Path, includes: list[str]) -> bvm.Program:
@@ -311,11 +331,15 @@ def _run(
     keys: RobotKeys | None,
     security: LinkSecurity,
     command_gate: CommandGate | None,
+    record: Path | None = None,
+    script_name: str = "",
 ) -> None:
     """Connect to the autopilot, run the loop, stop cleanly; exit 1 if the script is failed."""
     from fieldkit.node.autopilot_port import MavlinkAutopilot
     from fieldkit.node.clock import TickClock
     from fieldkit.node.node import Node
+    from fieldkit.node.recording import NodeRecording
+    from fieldkit.record.bag import BagError
     from fieldkit.vehicle.autopilot import AutopilotError
     from fieldkit.vehicle.link import Autopilot
 
@@ -327,6 +351,9 @@ def _run(
             link = Autopilot.from_profile(prof, autopilot, clock=tick_clock.now)
         except AutopilotError as e:
             raise fail(e) from None
+        recording = None if record is None else NodeRecording(record, prof, program)
+        if recording is not None:
+            recording.tap(link)
         try:
             try:
                 say(f"autopilot: waiting up to {connect_timeout:g} s for a heartbeat on {link.url}")
@@ -359,12 +386,23 @@ def _run(
                 keys=keys,
                 security=security,
                 command_gate=command_gate,
+                recorder=None if recording is None else recording.recorder,
             )
+            if recording is not None:
+                try:
+                    recording.begin(node, link, script_name=script_name, seed=seed,
+                                    globals_=dict(globals_), commands=commands)  # fmt: skip
+                except BagError as e:
+                    raise fail(e) from None
+                say(f"recording to {record}")
             with _stop_on_signals(node):
                 node.run(seconds)
             failed = node.finish()
         finally:
             link.close()
+            if recording is not None:
+                recording.close()
+                wrote(recording.path)
     why = "stopped by a signal" if node.stopping else "run over"
     say(f"{why}: {node.runtime.ticks} ticks, {node.late_ticks} late")
     if out is not None:

@@ -1,0 +1,118 @@
+"""`fieldkit replay BAG [--verify]`: a recorded flight into a fresh node, compared or reported."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from fieldkit.cli.errors import fail, usage_error
+from fieldkit.cli.options import KeysOption, load_keys
+from fieldkit.cli.output import progress_bar
+
+
+def _speed(text: str | None) -> float | None:
+    """`--speed X|max`: X times the recorded pace, or as fast as it goes (None)."""
+    if text is None:
+        return 1.0
+    if text == "max":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise usage_error(f"--speed must be a number > 0 or max, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise usage_error(f"--speed must be a number > 0 or max, got {text!r}")
+    return value
+
+
+def replay_cmd(
+    bag: Annotated[Path, typer.Argument(help="The recording (a bag directory, or FILE.bag).")],
+    verify: Annotated[
+        bool, typer.Option("--verify", help="Compare with what the recorded node did.")
+    ] = False,
+    speed: Annotated[
+        str | None,
+        typer.Option(
+            "--speed", metavar="X|max", help="X times the recorded pace, or max [default: 1]."
+        ),
+    ] = None,
+    script: Annotated[
+        Path | None,
+        typer.Option("--script", help="Replay with this script instead (a .bzz or .bo)."),
+    ] = None,
+    keys: KeysOption = None,
+    profile: Annotated[
+        str | None,
+        typer.Option("--profile", help="Device profile (for a bag that has none: a tlog's)."),
+    ] = None,
+    include: Annotated[
+        list[Path] | None, typer.Option("-I", "--include", help="Extra include directory.")
+    ] = None,
+) -> None:
+    """Replay BAG into a fresh node through a loopback serial: --verify compares every MAVLink
+    message, radio frame and script state with the recording (exit 1 at the first
+    divergence); without it, report what the script did."""
+    from fieldkit.cli.node import load_program
+    from fieldkit.errors import FieldkitError
+    from fieldkit.node.replay import ReplayError, replay
+    from fieldkit.record.bag import BagError
+    from fieldkit.record.flight_bag import read_flight
+    from fieldkit.robot.profiles import ProfileError, load_profile
+
+    # The options first, the bag last: a bad option is its own error, whatever the bag.
+    pace = _speed(speed)
+    robot_keys = load_keys(keys) if keys is not None else None
+    program = load_program(script, [str(d) for d in include or []]) if script else None
+    prof = None
+    if profile is not None:
+        try:
+            prof = load_profile(profile)
+        except (ProfileError, OSError) as e:
+            raise fail(e) from None
+    try:
+        flight = read_flight(bag)
+    except (BagError, OSError) as e:
+        # A comparing command: input it cannot read is exit 2, as a diff's.
+        raise usage_error(f"{bag}: {e}") from None
+    total = len(flight.ticks)
+    try:
+        with progress_bar(f"replaying {bag.name}", total) as advance:
+            report = replay(
+                flight, program=program, profile=prof, keys=robot_keys, verify=verify,
+                speed=pace, progress=advance,
+            )  # fmt: skip
+    except ReplayError as e:
+        if verify:
+            raise usage_error(f"{bag}: {e}") from None
+        raise fail(e) from None
+    except FieldkitError as e:
+        raise fail(e) from None
+    if verify:
+        checked = (
+            f"{report.ticks} ticks, {report.messages} MAVLink messages, "
+            f"{report.frames} radio frames, {report.digests} script states"
+        )
+        if report.divergence is not None:
+            typer.echo(f"replay: diverged after {checked} matched")
+            raise fail(f"first divergence: {report.divergence}")
+        typer.echo(f"replay: identical: {checked} ({bag})")
+        return
+    done = report.replayed
+    orders: dict[str, int] = {}
+    for t in done:
+        if t.order is not None:
+            orders[t.order[0]] = orders.get(t.order[0], 0) + 1
+    last = done[-1].state if done else None
+    for t in done:
+        for line in t.log:
+            typer.echo(f"[tick {t.tick}] {line}")
+    typer.echo(
+        f"replay: {report.ticks} ticks; final state {last}; orders "
+        f"{', '.join(f'{k} {n}' for k, n in sorted(orders.items())) or 'none'} ({bag})"
+    )
+
+
+__all__ = ["replay_cmd"]

@@ -1,0 +1,167 @@
+"""A `Flight` into a bag and back: the bag is the storage, the Flight what node and replay use.
+
+`FlightBag(writer)` streams a node's flight into a `BagWriter`: `start(flight)` once the node
+is built (the meta, then the start-up bytes the recorder kept), then `tick(t)` for each tick
+as it ends (`FlightRecorder(..., keep=False, on_tick=bag.tick)`). `read_flight(path)` reads a
+recording back into a Flight for `replay`. The Flight's meta (robot id, seed, home, start
+time, the core's clock readings, security state: nothing secret) travels as the bag's
+`config_json`; the start-up bytes as autopilot chunks of tick STARTUP_TICK.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from fieldkit.record.bag import BagError, BagReader, BagWriter, Meta, TickRow
+from fieldkit.record.flight import Flight, FlightTick
+
+#: The `tick` of the autopilot chunks before the first tick (the field is a uint32).
+STARTUP_TICK = 0xFFFFFFFF
+
+#: Flight meta keys that are Meta fields of their own, not part of config_json.
+_OWN = ("robot_id", "seed", "script_name")
+
+
+def _f(v: object) -> float:
+    return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else math.nan
+
+
+class FlightBag:
+    """Streams one node's Flight into a BagWriter."""
+
+    def __init__(self, writer: BagWriter) -> None:
+        self.writer = writer
+        self.robot_id = 0
+
+    def start(self, flight: Flight) -> None:
+        """The meta, then the start-up bytes: once, before the first tick."""
+        meta = flight.meta
+        self.robot_id = int(meta.get("robot_id", 0))  # type: ignore[call-overload]
+        config = {k: v for k, v in meta.items() if k not in _OWN}
+        first_ns = int(meta.get("started_unix_ns", 0))  # type: ignore[call-overload]
+        w = self.writer
+        w.meta(
+            Meta(
+                robot_id=self.robot_id,
+                seed=int(meta.get("seed", 0)),  # type: ignore[call-overload]
+                profile_toml=flight.profile_toml,
+                config_json=json.dumps(config, sort_keys=True),
+                script_name=str(meta.get("script_name", "")),
+                bo=flight.bo,
+                bdb=flight.bdb,
+                bpos=flight.bpos,
+                key_fingerprint=str(meta.get("key_fingerprint", "")),
+                started_unix_ns=first_ns,
+            )
+        )
+        for chunk in flight.startup_rx:
+            w.autopilot_rx(STARTUP_TICK, chunk, first_ns)
+        for chunk in flight.startup_tx:
+            w.autopilot_tx(STARTUP_TICK, chunk, first_ns)
+
+    def tick(self, t: FlightTick) -> None:
+        """One tick's inputs and outputs, then its row (the writer flushes there)."""
+        w = self.writer
+        ns = t.unix_ns
+        for sender, data in t.radio_in:
+            w.radio_in(t.tick, sender, data, ns)
+        for chunk in t.autopilot_rx:
+            w.autopilot_rx(t.tick, chunk, ns)
+        for chunk in t.autopilot_tx:
+            w.autopilot_tx(t.tick, chunk, ns)
+        for data in t.radio_out:
+            w.radio_out(t.tick, self.robot_id, data, ns)
+        s = t.sensors
+        kind, args = t.order if t.order is not None else ("", ())
+        w.tick(
+            TickRow(
+                tick=t.tick,
+                clock_s=t.clock_s,
+                unix_ns=ns,
+                lat=_f(s.get("lat")),
+                lon=_f(s.get("lon")),
+                alt=_f(s.get("alt")),
+                north=_f(s.get("north")),
+                east=_f(s.get("east")),
+                yaw=_f(s.get("yaw")),
+                voltage=_f(s.get("voltage")),
+                battery_percent=_f(s.get("battery_percent")),
+                status=str(s.get("status", "")),
+                armed=bool(s.get("armed", False)),
+                rc_cmd=int(s.get("rc_cmd") or 0),  # type: ignore[call-overload]
+                order_kind=kind,
+                order_args=tuple(float(a) for a in args),
+                events=tuple(t.events),
+                state=t.state or "",
+                digest=t.digest,
+                log=tuple(t.log),
+            )
+        )
+
+
+def read_flight(path: Path | str) -> Flight:
+    """The Flight a recording holds (BagError if it is not one a replay can use)."""
+    reader = BagReader(path)
+    meta = reader.meta
+    config = meta.config()
+    flight = Flight(
+        meta={**config, "robot_id": meta.robot_id, "seed": meta.seed,
+              "script_name": meta.script_name},
+        profile_toml=meta.profile_toml,
+        bo=meta.bo,
+        bdb=meta.bdb,
+        bpos=meta.bpos,
+    )  # fmt: skip
+    by_tick: dict[int, FlightTick] = {}
+    for row in reader.ticks():
+        sensors: dict[str, object] = {
+            "lat": row.lat, "lon": row.lon, "alt": row.alt, "north": row.north,
+            "east": row.east, "yaw": row.yaw, "voltage": row.voltage,
+            "battery_percent": row.battery_percent, "status": row.status,
+            "armed": row.armed, "rc_cmd": row.rc_cmd,
+        }  # fmt: skip
+        by_tick[row.tick] = FlightTick(
+            row.tick,
+            row.clock_s,
+            row.unix_ns,
+            digest=row.digest,
+            state=row.state or None,
+            order=(row.order_kind, tuple(row.order_args)) if row.order_kind else None,
+            events=list(row.events),
+            log=list(row.log),
+            sensors=sensors,
+        )
+
+    def at(tick: int, what: str) -> FlightTick:
+        t = by_tick.get(tick)
+        if t is None:
+            # A tlog's chunks have no tick rows: each tick is made by its first chunk.
+            if config.get("core_time") is not None:
+                hint = "the bag is damaged; `fieldkit bag info` shows what it holds"
+                raise BagError(path, f"{what} of tick {tick}, which has no tick row", hint)
+            t = by_tick[tick] = FlightTick(tick, tick / 10.0, 0)
+        return t
+
+    for chunk in reader.autopilot_rx():
+        if chunk.tick == STARTUP_TICK:
+            flight.startup_rx.append(chunk.data)
+        else:
+            t = at(chunk.tick, "autopilot bytes")
+            t.autopilot_rx.append(chunk.data)
+            t.unix_ns = t.unix_ns or chunk.unix_ns
+    for chunk in reader.autopilot_tx():
+        if chunk.tick == STARTUP_TICK:
+            flight.startup_tx.append(chunk.data)
+        else:
+            at(chunk.tick, "autopilot bytes").autopilot_tx.append(chunk.data)
+    for frame in reader.radio_in():
+        at(frame.tick, "a radio frame").radio_in.append((frame.sender, frame.data))
+    for frame in reader.radio_out():
+        at(frame.tick, "a radio frame").radio_out.append(frame.data)
+    flight.ticks = [by_tick[k] for k in sorted(by_tick)]
+    return flight
+
+
+__all__ = ["FlightBag", "STARTUP_TICK", "read_flight"]
