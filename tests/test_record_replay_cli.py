@@ -73,3 +73,34 @@ def test_replay_refuses_what_it_cannot_read(tmp_path: Path) -> None:
         assert result.stderr.startswith("error: ") and "Traceback" not in result.output
     result = runner.invoke(app, ["replay", str(junk), "--verify", "--speed", "fast"])
     assert result.exit_code == 2 and "--speed" in result.stderr
+
+
+def test_a_node_killed_mid_flight_leaves_a_bag_that_replays_up_to_the_cut(
+    tmp_path: Path, vehicle: str
+) -> None:
+    import subprocess
+    import sys
+
+    from rigs import kill_and_drain
+
+    script = tmp_path / "fly.bzz"
+    script.write_text(FLY)
+    bag = tmp_path / "flight"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fieldkit", "node", "--robot-id", "1", "--profile", "solo",
+         "--script", str(script), "--autopilot", vehicle, "--radio", "none", "--seconds", "60",
+         "--command", "1:1:22", "--record", str(bag)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # the script's lines: ticks have run and been written
+            if ": n 40 " in line:
+                break
+    finally:
+        kill_and_drain(proc, 60)
+    result = runner.invoke(app, ["replay", str(bag), "--verify", "--speed", "max"])
+    assert result.exit_code == 0, result.output
+    line = result.stdout.splitlines()[-1]
+    ticks = int(line.split("identical: ")[1].split(" ticks")[0])
+    assert ticks >= 40 - 10  # at most a second (10 ticks) lost to the kill

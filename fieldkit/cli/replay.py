@@ -98,6 +98,9 @@ def replay_cmd(
         if report.divergence is not None:
             typer.echo(f"replay: diverged after {checked} matched")
             raise fail(f"first divergence: {report.divergence}")
+        cut = flight.meta.get("cut_at_tick")
+        if cut is not None:
+            typer.echo(f"replay: the recording stops in tick {cut} (the node died then)")
         typer.echo(f"replay: identical: {checked} ({bag})")
         return
     done = report.replayed

@@ -115,6 +115,7 @@ def read_flight(path: Path | str) -> Flight:
         bpos=meta.bpos,
     )  # fmt: skip
     by_tick: dict[int, FlightTick] = {}
+    node_bag = config.get("core_time") is not None
     for row in reader.ticks():
         sensors: dict[str, object] = {
             "lat": row.lat, "lon": row.lon, "alt": row.alt, "north": row.north,
@@ -134,33 +135,42 @@ def read_flight(path: Path | str) -> Flight:
             sensors=sensors,
         )
 
-    def at(tick: int, what: str) -> FlightTick:
+    last_row = max(by_tick, default=-1)
+    cut: set[int] = set()  # ticks the recording stopped in (a crash): not replayable
+
+    def at(tick: int, what: str) -> FlightTick | None:
         t = by_tick.get(tick)
         if t is None:
-            # A tlog's chunks have no tick rows: each tick is made by its first chunk.
-            if config.get("core_time") is not None:
+            if node_bag:
+                if tick > last_row:  # the node died during this tick: its row never came
+                    cut.add(tick)
+                    return None
                 hint = "the bag is damaged; `fieldkit bag info` shows what it holds"
                 raise BagError(path, f"{what} of tick {tick}, which has no tick row", hint)
+            # An autopilot log's chunks have no tick rows: a tick is made by its first chunk.
             t = by_tick[tick] = FlightTick(tick, tick / 10.0, 0)
         return t
 
     for chunk in reader.autopilot_rx():
         if chunk.tick == STARTUP_TICK:
             flight.startup_rx.append(chunk.data)
-        else:
-            t = at(chunk.tick, "autopilot bytes")
+        elif (t := at(chunk.tick, "autopilot bytes")) is not None:
             t.autopilot_rx.append(chunk.data)
             t.unix_ns = t.unix_ns or chunk.unix_ns
     for chunk in reader.autopilot_tx():
         if chunk.tick == STARTUP_TICK:
             flight.startup_tx.append(chunk.data)
-        else:
-            at(chunk.tick, "autopilot bytes").autopilot_tx.append(chunk.data)
+        elif (t := at(chunk.tick, "autopilot bytes")) is not None:
+            t.autopilot_tx.append(chunk.data)
     for frame in reader.radio_in():
-        at(frame.tick, "a radio frame").radio_in.append((frame.sender, frame.data))
+        if (t := at(frame.tick, "a radio frame")) is not None:
+            t.radio_in.append((frame.sender, frame.data))
     for frame in reader.radio_out():
-        at(frame.tick, "a radio frame").radio_out.append(frame.data)
+        if (t := at(frame.tick, "a radio frame")) is not None:
+            t.radio_out.append(frame.data)
     flight.ticks = [by_tick[k] for k in sorted(by_tick)]
+    if cut:
+        flight.meta["cut_at_tick"] = min(cut)  # what a crash left of the last tick
     return flight
 
 
