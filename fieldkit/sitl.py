@@ -257,6 +257,7 @@ class SitlConfig:
     update: SitlUpdate | None = None  # an over-the-air update during the run
     security: str = "none"  # the nodes' --security; signed needs keys (`keys`, or --update's)
     keys: Path | None = None  # a `fieldkit keys init` directory (else --update makes keys)
+    record: Path | None = None  # each node records its flight to record/robot{ID}
 
 
 def _homes(cfg: SitlConfig) -> list[tuple[float, float]]:
@@ -322,6 +323,8 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
                 *cfg.extra,
             ]
             argv += ["--security", cfg.security]
+            if cfg.record is not None:
+                argv += ["--record", str(cfg.record / f"robot{r.id}")]
             if updating is not None or cfg.security == "signed":
                 # Each node's versions and bundle counter, fresh for the run.
                 if updating is None:

@@ -104,3 +104,23 @@ def test_a_node_killed_mid_flight_leaves_a_bag_that_replays_up_to_the_cut(
     line = result.stdout.splitlines()[-1]
     ticks = int(line.split("identical: ")[1].split(" ticks")[0])
     assert ticks >= 40 - 10  # at most a second (10 ticks) lost to the kill
+
+
+COMMITTED = Path(__file__).parent / "data" / "bags" / "sitl-climb"
+
+
+@pytest.mark.parametrize("robot", [1, 2])
+def test_the_committed_sitl_bags_replay_identically(robot: int, tmp_path: Path) -> None:
+    bag = COMMITTED / f"robot{robot}"
+    result = runner.invoke(app, ["replay", str(bag), "--verify", "--speed", "max"])
+    assert result.exit_code == 0, result.output
+    assert result.stdout.splitlines()[-1].startswith("replay: identical: 40 ticks")
+    # And with the script edited, the divergence is found where the climb starts.
+    edited = Path(__file__).parent / "data" / "bags" / "climb.bzz"
+    text = edited.read_text().replace("uav_takeoff(3.0)", "uav_takeoff(3.5)")
+    changed = tmp_path / "climb.bzz"
+    changed.write_text(text)
+    result = runner.invoke(
+        app, ["replay", str(bag), "--verify", "--speed", "max", "--script", str(changed)]
+    )
+    assert result.exit_code == 1 and "param7" in result.stderr, result.output

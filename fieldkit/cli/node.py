@@ -43,6 +43,8 @@ if TYPE_CHECKING:
     from fieldkit.robot.rc import RcCommand
     from fieldkit.update.keys import RobotKeys
     from fieldkit.update.store import Committed, VersionStore
+    from fieldkit.vehicle.autopilot import MavCommand
+    from fieldkit.vehicle.link import Autopilot
 
 
 def robot_id_from(profile: Profile, given: int | None) -> int:
@@ -358,13 +360,14 @@ def _run(
             try:
                 say(f"autopilot: waiting up to {connect_timeout:g} s for a heartbeat on {link.url}")
                 link.wait_heartbeat(connect_timeout)
-                link.request_streams(prof.node.loop_rate_hz)
+                streams = link.request_streams(prof.node.loop_rate_hz)
                 fix_s = prof.autopilot.gps_fix_timeout_s
                 say(f"autopilot: waiting up to {fix_s:g} s for a GPS fix")
                 link.wait_gps_fix(fix_s)
                 t = link.wait_position(fix_s)
             except AutopilotError as e:
                 raise fail(e) from None
+            _settle(link, streams, say)
             assert t.lat is not None and t.lon is not None  # what wait_position waited for
             home = (t.home[0], t.home[1], 0.0) if t.home is not None else (t.lat, t.lon, 0.0)
             until = "until stopped" if seconds is None else f"for {seconds:g} s"
@@ -412,6 +415,24 @@ def _run(
             f"{failed}\nrobot {rid}'s script stopped at this error and the robot ended the run "
             f"in its failsafe (on_script_error = {prof.failsafe.on_script_error})"
         )
+
+
+#: Seconds the start-up gives the stream requests to be answered before the loop begins.
+STREAMS_SETTLE_S = 5.0
+
+
+def _settle(link: Autopilot, streams: MavCommand, say: NodeLog) -> None:
+    """Start the loop with no command in flight: the stream requests answered (or given up
+    on), so that a recording's first tick does not depend on how far they had got."""
+    from fieldkit.vehicle.autopilot import AutopilotError
+
+    if not streams.done:
+        try:
+            link.wait_command(streams, STREAMS_SETTLE_S)
+        except AutopilotError as e:
+            say(f"autopilot: stream rates not all confirmed ({e}); going on")
+    if not streams.done:
+        link.cancel_all("the loop begins")
 
 
 @contextmanager

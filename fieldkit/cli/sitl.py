@@ -53,6 +53,14 @@ def sitl_cmd(
     update: UpdateOption = None,
     security: SecurityOption = None,
     keys: KeysOption = None,
+    record: Annotated[
+        Path | None,
+        typer.Option(
+            "--record",
+            metavar="DIR",
+            help="Each node records its flight as a rosbag, DIR/robot{ID} (fieldkit replay).",
+        ),
+    ] = None,
 ) -> None:
     """Run SCRIPT on N real nodes against simulated autopilots, over a simulated radio."""
     import bvm
@@ -107,6 +115,12 @@ def sitl_cmd(
     for u in updates:  # compiled and tried before any node starts: a bad one is never sent
         sitl_update = SitlUpdate(u.t, release_for(u, dirs, profile), u.robot, u.script.name)
     out_dir(out)  # an --out that is a file fails here, with `error:`
+    if record is not None:
+        out_dir(record, "--record")
+        taken = [f"robot{i}" for i in range(1, robots + 1) if (record / f"robot{i}").exists()]
+        if taken:
+            raise fail(f"--record {record}: {', '.join(taken)} exist already\n"
+                       f"hint: record to a new directory")  # fmt: skip
     warn_if_insecure(mode)
     cfg = SitlConfig(
         script=script.resolve(),
@@ -123,6 +137,7 @@ def sitl_cmd(
         update=sitl_update,
         security=mode,
         keys=keys,
+        record=record,
     )
     with progress_bar(f"SITL: {robots} robots", round(seconds)) as advance:
         try:
