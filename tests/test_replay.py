@@ -166,11 +166,14 @@ def test_a_changed_script_is_caught_at_the_tick_it_changes(flight: Flight) -> No
     report = replay(flight, program=changed)
     d = report.divergence
     assert d is not None
-    # The tick whose recorded writes hold the takeoff command (after arming is acknowledged).
-    takeoff = next(t.tick for t in flight.ticks if _takes_off(t))
-    assert d.tick == takeoff and "COMMAND_LONG" in d.channel
-    assert d.expected == "{'param7': 6.0}" and d.got == "{'param7': 7.0}"
-    assert report.ticks == takeoff + 1 and report.digests == takeoff
+    # The first order to take off: the supervisor's order differs before any byte does.
+    order = next(t.tick for t in flight.ticks if t.order and t.order[0] == "takeoff")
+    assert d.tick == order and d.channel == "order to the vehicle"
+    assert d.expected == "('takeoff', (6.0,))" and d.got == "('takeoff', (7.0,))"
+    assert report.ticks == order + 1 and report.digests == order
+    # The command on the line (after arming is acknowledged) comes later: had the orders
+    # agreed, the bytes would have told.
+    assert next(t.tick for t in flight.ticks if _takes_off(t)) > order
 
 
 def test_a_script_change_that_only_touches_state_is_caught_by_the_digest(flight: Flight) -> None:

@@ -22,7 +22,6 @@ depends on how long the vehicle took to answer.
 from __future__ import annotations
 
 import fcntl
-import math
 import os
 import struct
 import tempfile
@@ -30,16 +29,14 @@ import termios
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-from pymavlink.dialects.v20 import all as mavlink2
-
 import bvm
-from fieldkit.errors import FieldkitError
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.clock import TickClock
 from fieldkit.node.node import Node
+from fieldkit.record.compare import Divergence, ReplayError, ReplayReport, compare_tick
 from fieldkit.record.flight import Flight, FlightRecorder, FlightTick
 from fieldkit.robot.bundle_auth import MemoryCounter, Sealer, Verifier, bundle_key
 from fieldkit.robot.link_security import LinkSecurity
@@ -53,37 +50,6 @@ from fieldkit.vehicle.pty import open_pty
 
 #: How long (real seconds) to wait for bytes written into the pty to reach the node's end.
 DELIVERY_TIMEOUT_S = 10.0
-
-
-class ReplayError(FieldkitError):
-    """A flight that cannot be replayed: what is missing or wrong, and where."""
-
-
-@dataclass(frozen=True)
-class Divergence:
-    """The first place the replay did something else: tick, channel, expected, got."""
-
-    tick: int
-    channel: str
-    expected: str
-    got: str
-
-    def __str__(self) -> str:
-        """One line for the terminal."""
-        return f"tick {self.tick}, {self.channel}: expected {self.expected}, got {self.got}"
-
-
-@dataclass
-class ReplayReport:
-    """What a replay verified, and where it diverged (None: identical)."""
-
-    ticks: int = 0
-    messages: int = 0  # MAVLink messages to the autopilot compared
-    frames: int = 0  # radio frames compared
-    digests: int = 0  # script-state digests compared
-    divergence: Divergence | None = None
-    #: What the node did, tick by tick, when not verifying (an autopilot log's replay).
-    replayed: list[FlightTick] = field(default_factory=list)
 
 
 class ReplayClock(TickClock):
@@ -182,73 +148,6 @@ class _Line:
                     return
             except (BlockingIOError, OSError):
                 return
-
-
-def _messages(chunks: Sequence[bytes]) -> list[dict[str, object]]:
-    """The MAVLink messages in a byte stream, as field dicts (header fields left out: the
-    sequence number counts start-up writes too)."""
-    parser = mavlink2.MAVLink(None)
-    parser.robust_parsing = True
-    out: list[dict[str, object]] = []
-    for chunk in chunks:
-        for m in parser.parse_buffer(chunk) or []:
-            if m.get_type() == "BAD_DATA":
-                continue
-            out.append(m.to_dict())
-    return out
-
-
-def _same(a: object, b: object) -> bool:
-    """Field equality in which a NaN equals a NaN (MAVLink uses NaN for "not set")."""
-    if isinstance(a, float) and isinstance(b, float):
-        return a == b or (math.isnan(a) and math.isnan(b))
-    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
-    return a == b
-
-
-def _compare(expected: FlightTick, got: FlightTick, report: ReplayReport) -> Divergence | None:
-    """The first difference between a recorded tick and its replay, counting what matched."""
-    k = expected.tick
-    want, have = _messages(expected.autopilot_tx), _messages(got.autopilot_tx)
-    for i, (a, b) in enumerate(zip(want, have, strict=False)):
-        diff = sorted(f for f in set(a) | set(b) if not _same(a.get(f), b.get(f)))
-        if diff:
-            return Divergence(
-                k, f"autopilot message {i + 1} of the tick ({a.get('mavpackettype')})",
-                f"{ {f: a.get(f) for f in diff} }", f"{ {f: b.get(f) for f in diff} }",
-            )  # fmt: skip
-        report.messages += 1
-    if len(want) != len(have):
-        extra = have[len(want) :] or want[len(have) :]
-        names = ", ".join(str(m.get("mavpackettype")) for m in extra[:5])
-        return Divergence(
-            k, "autopilot messages", f"{len(want)} messages", f"{len(have)} ({names} ...)"
-        )
-    for i, (sent, again) in enumerate(zip(expected.radio_out, got.radio_out, strict=False)):
-        if sent != again:
-            at = next(
-                (j for j, (x, y) in enumerate(zip(sent, again, strict=False)) if x != y), None
-            )
-            where = f"byte {at}" if at is not None else "the length"
-            return Divergence(
-                k, f"radio frame {i + 1} of the tick",
-                f"{len(sent)} bytes {sent.hex()}", f"{len(again)} bytes, differing at {where}: "
-                f"{again.hex()}",
-            )  # fmt: skip
-        report.frames += 1
-    if len(expected.radio_out) != len(got.radio_out):
-        return Divergence(
-            k, "radio frames", f"{len(expected.radio_out)} frames", f"{len(got.radio_out)}"
-        )
-    if expected.state != got.state:
-        return Divergence(k, "script state (BVMSTATE)", repr(expected.state), repr(got.state))
-    if expected.digest != got.digest:
-        return Divergence(
-            k, "script state digest", expected.digest.hex()[:16], got.digest.hex()[:16]
-        )
-    report.digests += 1
-    return None
 
 
 def recording_meta(
@@ -527,7 +426,7 @@ class _Replay:
             report.ticks += 1
             mine = self.done.pop()
             if self.verify:
-                report.divergence = _compare(tick, mine, report)
+                report.divergence = compare_tick(tick, mine, report)
                 if report.divergence is not None:
                     break
             else:
