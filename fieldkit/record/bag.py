@@ -36,6 +36,7 @@ import os
 import re
 import threading
 import time
+import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -96,7 +97,7 @@ MIN_MAX_BYTES = 64 * 1024
 """The smallest part size allowed: a part holds at least its meta and a few chunks."""
 
 _HINT_FOREIGN = "this bag was not written by fieldkit (`fieldkit node --record`, `bag from-tlog`)"
-_HINT_CORRUPT = "the file is damaged beyond its last whole chunk; nothing before it is readable"
+_HINT_CORRUPT = "its bytes changed after it was recorded (a disk or copy fault?): copy it again"
 
 _FINGERPRINT = re.compile(r"[0-9a-fA-F]{8,32}")
 #: Text that only a secret holds: a swarm key file's tag, a PEM private key.
@@ -360,6 +361,11 @@ class _Part(Protocol):
         """Write the index and close."""
 
 
+#: Where a chunk record's CRC field is: after its opcode and length (9 bytes), then its start
+#: time, end time and uncompressed size (8 bytes each). https://mcap.dev/spec#chunk-op0x06
+_CHUNK_CRC_AT = 9 + 24
+
+
 class _McapPart:
     """A ROS 2 bag directory with MCAP storage, through rosbags' writer."""
 
@@ -384,9 +390,18 @@ class _McapPart:
 
     def flush(self) -> None:
         """Close the pending chunk (rosbags would wait for 1 MiB) and push it to the OS."""
-        if self.storage.chunk.bio.tell():
-            self.storage.close_chunk()
-        self.storage.bio.flush()
+        storage = self.storage
+        if storage.chunk.bio.tell():
+            crc = zlib.crc32(storage.chunk.bio.getbuffer())
+            start = storage.bio.tell()
+            storage.close_chunk()
+            # rosbags leaves the chunk's CRC at 0 ("none"); with one, a damaged chunk is an
+            # error (rosbags and the scan check it) instead of wrong values read back.
+            end = storage.bio.tell()
+            storage.bio.seek(start + _CHUNK_CRC_AT)
+            storage.bio.write(crc.to_bytes(4, "little"))
+            storage.bio.seek(end)
+        storage.bio.flush()
 
     def size(self) -> int:
         """File bytes plus the pending chunk."""
@@ -398,6 +413,7 @@ class _McapPart:
 
     def close(self) -> None:
         """Summary, footer, metadata.yaml."""
+        self.flush()  # the last chunk with its CRC too
         self.writer.close()
 
 
@@ -917,10 +933,9 @@ class _ScanSource:
         ]
         self.start_ns = s.start_ns
         self.end_ns = s.end_ns
-        where = f"cut at byte {s.good_bytes} of {s.size}" if s.stopped else "no index"
         self.damage = (
-            f"{why}; read by scanning its records ({where}): {s.message_count} messages"
-            + (f"; stopped at {s.stopped}" if s.stopped else "")
+            f"{why}: read by scanning its records, up to byte {s.good_bytes} of {s.size}: "
+            f"{s.message_count} messages" + (f"; then {s.stopped}" if s.stopped else "")
         )
 
     def messages(self, topics: set[str]) -> Iterator[tuple[str, int, bytes]]:
@@ -942,6 +957,8 @@ def _open_source(path: Path, ros1: bool) -> _Source:
     elif path.is_file():
         if path.suffix != ".mcap":
             hint = "a ROS 2 bag is a directory; a ROS 1 bag's name ends in .bag"
+            if path.suffix == ".tlog":
+                hint = f"convert a tlog first: fieldkit bag from-tlog {path} -o BAG"
             raise BagError(path, "not a bag directory", hint)
         file = path
     else:
@@ -956,8 +973,14 @@ def _open_source(path: Path, ros1: bool) -> _Source:
         first = _describe(e)
     if file.is_dir():  # a metadata.yaml rosbags refused, and no MCAP file to scan
         raise BagError(path, f"unreadable: {first}", _HINT_FOREIGN)
+    if ros1 and "not indexed" in first:
+        why = "not closed (no index)"
+    elif not ros1 and not (path / "metadata.yaml").exists():
+        why = "not closed (no metadata.yaml)"
+    else:
+        why = f"unreadable by rosbags ({first})"
     try:
-        return _ScanSource(path, file, ros1, f"not closed properly ({first})")
+        return _ScanSource(path, file, ros1, why)
     except scanning.ScanError as e:
         raise BagError(file, f"unreadable: {e}", _HINT_FOREIGN) from None
     except OSError as e:

@@ -191,14 +191,14 @@ def scan_mcap(path: Path) -> Scan:
             scan.good_bytes = pos
             head = f.read(9)
             if len(head) < 9:
-                scan.stopped = "" if not head else f"cut short inside a record at byte {pos}"
+                scan.stopped = "" if not head else f"a record cut short at byte {pos}"
                 break
             op, length = head[0], int(_U64.unpack(head[1:])[0])
             if op == 0:  # never a record: zeros a power cut left, or garbage
                 scan.stopped = f"bytes that are no MCAP record at byte {pos}"
                 break
             if length > MAX_RECORD_BYTES or pos + 9 + length > size:
-                scan.stopped = f"cut short inside a record at byte {pos}"
+                scan.stopped = f"a record cut short at byte {pos}"
                 break
             if first:
                 if op != _OP_HEADER:
@@ -429,17 +429,17 @@ def scan_ros1(path: Path) -> Scan:
             scan.good_bytes = pos
             head = f.read(4)
             if len(head) < 4:
-                scan.stopped = "" if not head else f"cut short at byte {pos}"
+                scan.stopped = "" if not head else f"a record cut short at byte {pos}"
                 break
             hlen = int(_U32.unpack(head)[0])
             if hlen > MAX_RECORD_BYTES or pos + 4 + hlen + 4 > size:
-                scan.stopped = f"cut short at byte {pos}"
+                scan.stopped = f"a record cut short at byte {pos}"
                 break
             header = f.read(hlen)
             dlen = int(_U32.unpack(_read_exact(f, 4))[0])
             end = pos + 4 + hlen + 4 + dlen
             if dlen > MAX_RECORD_BYTES or end > size:
-                scan.stopped = f"cut short at byte {pos}"
+                scan.stopped = f"a record cut short at byte {pos}"
                 break
             try:
                 fields = _ros1_header(header)
