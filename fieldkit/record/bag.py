@@ -212,6 +212,9 @@ class RadioFrame:
     sender: int
     data: bytes
     unix_ns: int
+    #: Where the sender was (east, north; the simulator's), NaN from a real radio.
+    east: float = math.nan
+    north: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -596,9 +599,16 @@ class BagWriter:
         self._put(TOPIC_TX, self._chunk(tick, data), stamp)
         return self._frames(self._tx, data, TOPIC_MAVLINK_TO, stamp)
 
-    def radio_in(self, tick: int, sender: int, data: bytes, unix_ns: int) -> None:
-        """A frame the radio returned."""
-        self._put(TOPIC_RADIO_IN, self._radio(tick, sender, data), self._stamp(unix_ns))
+    def radio_in(
+        self,
+        tick: int,
+        sender: int,
+        data: bytes,
+        unix_ns: int,
+        where: tuple[float, float] | None = None,
+    ) -> None:
+        """A frame the radio returned (`where` the sender was, if the host knows: east, north)."""
+        self._put(TOPIC_RADIO_IN, self._radio(tick, sender, data, where), self._stamp(unix_ns))
 
     def radio_out(self, tick: int, sender: int, data: bytes, unix_ns: int) -> None:
         """A frame the node sent (`sender`: this robot)."""
@@ -797,10 +807,15 @@ class BagWriter:
         """A SerialChunk message."""
         return self._types[SERIAL_CHUNK](tick=tick, data=np.frombuffer(data, dtype=np.uint8))
 
-    def _radio(self, tick: int, sender: int, data: bytes) -> Any:
+    def _radio(
+        self, tick: int, sender: int, data: bytes, where: tuple[float, float] | None = None
+    ) -> Any:
         """A RadioFrame message."""
         arr = np.frombuffer(data, dtype=np.uint8)
-        return self._types[RADIO_FRAME](tick=tick, sender=sender, data=arr)
+        east, north = (math.nan, math.nan) if where is None else where
+        return self._types[RADIO_FRAME](
+            tick=tick, sender=sender, data=arr, east=float(east), north=float(north)
+        )
 
     def _frames(self, reader: FrameReader, data: bytes, topic: str, stamp: int) -> list[Any]:
         """Parse `data` on (rx or tx) and record each whole frame on `topic`."""
@@ -1306,7 +1321,10 @@ def _to_row(topic: str, msg: Any, stamp: int) -> Row:
     if topic in (TOPIC_RX, TOPIC_TX):
         return SerialChunk(int(msg.tick), bytes(msg.data), stamp)
     if topic in (TOPIC_RADIO_IN, TOPIC_RADIO_OUT):
-        return RadioFrame(int(msg.tick), int(msg.sender), bytes(msg.data), stamp)
+        return RadioFrame(
+            int(msg.tick), int(msg.sender), bytes(msg.data), stamp,
+            float(msg.east), float(msg.north),
+        )  # fmt: skip
     if topic in (TOPIC_MAVLINK_FROM, TOPIC_MAVLINK_TO):
         frame = mavlink_frame(msg)
         return MavlinkFrame(stamp, frame, _decode_frame(frame))

@@ -53,6 +53,9 @@ class FlightTick:
     clock_s: float
     unix_ns: int
     radio_in: list[tuple[int, bytes]] = field(default_factory=list)
+    #: Where each sender of `radio_in` was (east, north), when the host knew better than the
+    #: bundle's GPS (the simulator); empty otherwise.
+    radio_where: list[tuple[float, float]] = field(default_factory=list)
     radio_out: list[bytes] = field(default_factory=list)
     autopilot_rx: list[bytes] = field(default_factory=list)
     autopilot_tx: list[bytes] = field(default_factory=list)
@@ -125,10 +128,15 @@ class FlightRecorder:
         )
         self._next_rx, self._next_tx = [], []
 
-    def radio_in(self, sender: int, data: bytes) -> None:
-        """A frame the radio handed in."""
-        assert self.current is not None
-        self.current.radio_in.append((sender, bytes(data)))
+    def radio_in(
+        self, sender: int, data: bytes, where: tuple[float, float] | None = None
+    ) -> None:
+        """A frame the radio handed in (`where` the sender was, if the host knows)."""
+        cur = self.current
+        assert cur is not None
+        cur.radio_in.append((sender, bytes(data)))
+        if where is not None:
+            cur.radio_where.append(where)
 
     def radio_out(self, data: bytes) -> None:
         """A frame the node sent."""

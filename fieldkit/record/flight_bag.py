@@ -65,8 +65,9 @@ class FlightBag:
         """One tick's inputs and outputs, then its row (the writer flushes there)."""
         w = self.writer
         ns = t.unix_ns
-        for sender, data in t.radio_in:
-            w.radio_in(t.tick, sender, data, ns)
+        wheres = t.radio_where if len(t.radio_where) == len(t.radio_in) else None
+        for k, (sender, data) in enumerate(t.radio_in):
+            w.radio_in(t.tick, sender, data, ns, None if wheres is None else wheres[k])
         for chunk in t.autopilot_rx:
             w.autopilot_rx(t.tick, chunk, ns)
         for chunk in t.autopilot_tx:
@@ -165,6 +166,8 @@ def read_flight(path: Path | str) -> Flight:
     for frame in reader.radio_in():
         if (t := at(frame.tick, "a radio frame")) is not None:
             t.radio_in.append((frame.sender, frame.data))
+            if not math.isnan(frame.east):
+                t.radio_where.append((frame.east, frame.north))
     for frame in reader.radio_out():
         if (t := at(frame.tick, "a radio frame")) is not None:
             t.radio_out.append(frame.data)
