@@ -322,7 +322,8 @@ def _bad_inputs() -> list[tuple[tuple[str, ...], str, str, int, str]]:
                 continue  # (an include directory that does not exist is not searched)
             elif name == "record":  # a new recording: a path that must not exist yet
                 cases.append((path, name, "{d}/existing.txt", 1, "existing.txt"))
-                cases.append((path, name, "{d}/nodir/flight", 1, "nodir"))
+                if path == ("node",):  # one bag, in a directory that exists (sim, sitl: DIR)
+                    cases.append((path, name, "{d}/nodir/flight", 1, "nodir"))
             elif path == ("replay",) and name == "bag":  # unreadable input to compare: 2
                 cases.append((path, name, "{d}/nope.bzz", 2, "nope.bzz"))
                 cases.append((path, name, "{d}/locked.bzz", 2, "locked.bzz"))

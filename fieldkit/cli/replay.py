@@ -61,6 +61,7 @@ def replay_cmd(
     from fieldkit.record.bag import BagError
     from fieldkit.record.flight_bag import read_flight
     from fieldkit.robot.profiles import ProfileError, load_profile
+    from fieldkit.sim.replay import replay_sim
 
     # The options first, the bag last: a bad option is its own error, whatever the bag.
     pace = _speed(speed)
@@ -78,12 +79,18 @@ def replay_cmd(
         # A comparing command: input it cannot read is exit 2, as a diff's.
         raise usage_error(f"{bag}: {e}") from None
     total = len(flight.ticks)
+    simulated = flight.meta.get("host") == "sim"
+    if simulated and not verify:
+        raise usage_error(f"{bag}: a simulated robot's recording replays with --verify")
     try:
         with progress_bar(f"replaying {bag.name}", total) as advance:
-            report = replay(
-                flight, program=program, profile=prof, keys=robot_keys, verify=verify,
-                speed=pace, progress=advance,
-            )  # fmt: skip
+            if simulated:  # no autopilot bytes: its runtime on its recorded inputs
+                report = replay_sim(flight, program=program, keys=robot_keys, progress=advance)
+            else:
+                report = replay(
+                    flight, program=program, profile=prof, keys=robot_keys, verify=verify,
+                    speed=pace, progress=advance,
+                )  # fmt: skip
     except ReplayError as e:
         if verify:
             raise usage_error(f"{bag}: {e}") from None

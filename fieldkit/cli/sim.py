@@ -80,6 +80,14 @@ def run_cmd(
     update: UpdateOption = None,
     security: SecurityOption = None,
     keys: KeysOption = None,
+    record: Annotated[
+        Path | None,
+        typer.Option(
+            "--record",
+            metavar="DIR",
+            help="Record every robot's flight as a rosbag, DIR/robot{ID} (fieldkit replay).",
+        ),
+    ] = None,
     attack: Annotated[
         str | None,
         typer.Option(
@@ -91,6 +99,7 @@ def run_cmd(
     ] = None,
 ) -> None:
     """Run SCRIPT on N simulated robots: OUT/summary.json, log.txt, trajectories.csv, plot.png."""
+    from fieldkit.errors import FieldkitError
     from fieldkit.sim.simulator import (
         ConfigError,
         SimConfig,
@@ -136,12 +145,24 @@ def run_cmd(
     except (ConfigError, BuzzCompileError) as e:
         raise fail(e) from None
     out_dir(out)
+    bags: list[Path] = []
+    if record is not None:
+        out_dir(record, "--record")
+        try:
+            bags = sim.record(record)
+        except FieldkitError as e:  # a bag of that name exists already
+            raise fail(e) from None
     warn_if_insecure(mode)
     from fieldkit.sim.tracks import SimRecorder, write_tracks
 
     recorder = SimRecorder(sim)
-    with progress_bar(f"simulating {robots} robots", round(seconds * 10)) as advance:
-        sim.run(progress=advance, after_step=recorder.after_step)
+    try:
+        with progress_bar(f"simulating {robots} robots", round(seconds * 10)) as advance:
+            sim.run(progress=advance, after_step=recorder.after_step)
+    finally:
+        sim.close_recording()
+    for bag in bags:
+        wrote(bag)
     summary = sim.summary()
     summary["home"] = [lat, lon]
     summary["spacing_m"] = config.spacing_m

@@ -54,7 +54,8 @@ class FlightTick:
     unix_ns: int
     radio_in: list[tuple[int, bytes]] = field(default_factory=list)
     #: Where each sender of `radio_in` was (east, north), when the host knew better than the
-    #: bundle's GPS (the simulator); empty otherwise.
+    #: bundle's GPS (the simulator; NaN for a frame whose sender it did not place); empty
+    #: from a node.
     radio_where: list[tuple[float, float]] = field(default_factory=list)
     radio_out: list[bytes] = field(default_factory=list)
     autopilot_rx: list[bytes] = field(default_factory=list)
@@ -128,9 +129,7 @@ class FlightRecorder:
         )
         self._next_rx, self._next_tx = [], []
 
-    def radio_in(
-        self, sender: int, data: bytes, where: tuple[float, float] | None = None
-    ) -> None:
+    def radio_in(self, sender: int, data: bytes, where: tuple[float, float] | None = None) -> None:
         """A frame the radio handed in (`where` the sender was, if the host knows)."""
         cur = self.current
         assert cur is not None

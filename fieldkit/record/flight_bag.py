@@ -166,8 +166,7 @@ def read_flight(path: Path | str) -> Flight:
     for frame in reader.radio_in():
         if (t := at(frame.tick, "a radio frame")) is not None:
             t.radio_in.append((frame.sender, frame.data))
-            if not math.isnan(frame.east):
-                t.radio_where.append((frame.east, frame.north))
+            t.radio_where.append((frame.east, frame.north))  # NaN: a real radio's
     for frame in reader.radio_out():
         if (t := at(frame.tick, "a radio frame")) is not None:
             t.radio_out.append(frame.data)

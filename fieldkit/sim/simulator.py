@@ -51,6 +51,8 @@ from fieldkit.vehicle.kinematics import Vehicle
 if TYPE_CHECKING:
     from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
+    from fieldkit.sim.recording import SimRecording
+
 _log = logging.getLogger("fieldkit.sim")
 
 #: The note an update frame travels with on the simulated radio (bundles carry their own).
@@ -345,6 +347,8 @@ class Simulation:
             if self.updates is not None:
                 self.updates.attach(runtime, self._sink(rid))
         self.attacker = self._attacker(config) if config.attacks else None
+        #: `record(DIR)`: every robot's flight into a bag (fieldkit/sim/recording.py).
+        self.recording: SimRecording | None = None
 
     def _attacker(self, config: SimConfig) -> Attacker:
         """The hostile radio, at the middle of the swarm's start positions."""
@@ -387,6 +391,8 @@ class Simulation:
         def sink(text: str) -> None:
             if text.startswith(prefix):
                 text = text[len(prefix) :]
+            if self.recording is not None:
+                self.recording.log(rid, text)
             line = log_line(self.tick * TICK_S, rid, text)
             self.log.append(line)
             if self.on_log is not None:
@@ -423,9 +429,15 @@ class Simulation:
         """Advance every robot by one tick."""
         t = self.tick
         robots = self.robots
+        rec = self.recording
+        if rec is not None:
+            rec.begin(t, t * TICK_S)
         # 1. radio in
         reparse = self.config.decode_bundles
-        for _sender, data, pos, receivers, sent in self.radio.receptions(t):
+        for sender, data, pos, receivers, sent in self.radio.receptions(t):
+            if rec is not None:
+                where = None if sent is _UPDATE_FRAME else (pos[0], pos[1])
+                rec.heard(sender, data, where, receivers)
             if sent is _UPDATE_FRAME:
                 self._receive_update(data, receivers)
                 continue
@@ -477,10 +489,12 @@ class Simulation:
             self._send(robot, out.bundle, out.messages)
             if runtime.relays:
                 for relay in runtime.take_relays():  # operator commands, passed on once
-                    self.radio.broadcast(t, robot.id, relay)
+                    self._relay(t, robot.id, relay)
             if out.order is not None:
                 self._actuate(robot, out.order)
             robot.vehicle.step(TICK_S)
+            if rec is not None:
+                rec.end(robot.id, self)
         self.tick += 1
 
     def _step_updating(
@@ -505,7 +519,7 @@ class Simulation:
             self._send(robot, out.bundle, out.messages)
             if runtime.relays:
                 for relay in runtime.take_relays():  # operator commands, passed on once
-                    self.radio.broadcast(t, robot.id, relay)
+                    self._relay(t, robot.id, relay)
             frame = updater.after_step()
             if frame is not None:
                 room = self.radio.room(t, robot.id)
@@ -513,11 +527,34 @@ class Simulation:
                     self.radio.broadcast(t, robot.id, frame, note=_UPDATE_FRAME)
                     if self.attacker is not None:
                         self.attacker.record(t, frame, robot.vehicle.position)
+                    if self.recording is not None:
+                        self.recording.sent(robot.id, frame)
             if out.order is not None:
                 self._actuate(robot, out.order)
             robot.vehicle.step(TICK_S)
+            if self.recording is not None:
+                self.recording.end(robot.id, self)
         updates.after_tick(t)
         self.tick += 1
+
+    def _relay(self, t: int, rid: int, frame: bytes) -> None:
+        """An operator command frame robot `rid` passes on."""
+        self.radio.broadcast(t, rid, frame)
+        if self.recording is not None:
+            self.recording.sent(rid, frame)
+
+    def record(self, out: Path) -> list[Path]:
+        """Record every robot's flight from now on, one bag each in `out` (BagError if one
+        exists already); the bags' paths. Call before `run`; `close_recording` after."""
+        from fieldkit.sim.recording import SimRecording
+
+        self.recording = SimRecording(self, out)
+        return list(self.recording.paths)
+
+    def close_recording(self) -> None:
+        """Finish the bags `record` opened."""
+        if self.recording is not None:
+            self.recording.close()
 
     def _hostile_in(self, t: int) -> None:
         """The attacker's frames due now, through each receiver's whole radio-in path (an
@@ -528,6 +565,8 @@ class Simulation:
         updaters = self.updates.updaters if self.updates is not None else {}
         accepted = self.attacker.accepted
         for _sender, data, _pos, receivers, kind in self.attacker.radio.receptions(t):
+            if self.recording is not None:
+                self.recording.heard(self.attacker.id, data, None, receivers)
             for receiver in receivers:
                 robot = robots.get(receiver)
                 if robot is None:
@@ -588,6 +627,8 @@ class Simulation:
         security = robot.runtime.security
         counter = 0 if security is None else security.last_counter
         self.radio.broadcast(self.tick, robot.id, data, note=(robot.id, messages, counter))
+        if self.recording is not None:
+            self.recording.sent(robot.id, data)
         if self.attacker is not None:
             self.attacker.record(self.tick, data, robot.vehicle.position)
 
