@@ -1,9 +1,9 @@
 """The `fieldkit` command line: every command, from this package only.
 
 One module per command group (`buzz`: compile, run, asm, disasm; `sim`: sim run, experiment,
-sweep; `node`; `vehicle_sim`; `sitl`; `update`; `keys`: keys init; `patch`: patch apply),
-`errors` for the one way errors are reported and the exit-code rule, `output` for where
-results go. Library modules never import this package.
+sweep; `node`; `vehicle_sim`; `sitl`; `update`; `keys`: keys init; `patch`: patch apply; `bag`:
+bag info, bag from-tlog), `errors` for the one way errors are reported and the exit-code
+rule, `output` for where results go. Library modules never import this package.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Annotated
 
 import typer
 
-from fieldkit.cli import buzz, keys, node, patch, sim, sitl, update, vehicle_sim
+from fieldkit.cli import bag, buzz, keys, node, patch, sim, sitl, update, vehicle_sim
 from fieldkit.cli.errors import FieldkitGroup
 
 app = typer.Typer(
@@ -64,6 +64,7 @@ app.add_typer(sim.app, name="sim")
 app.command("update")(update.update_cmd)
 app.add_typer(keys.app, name="keys")
 app.add_typer(patch.app, name="patch")
+app.add_typer(bag.app, name="bag")
 
 
 def main() -> None:
