@@ -199,3 +199,18 @@ def test_what_is_not_a_tlog_is_refused(tmp_path: Path) -> None:
     report = tlog_to_bag(small, tmp_path / "ros1.bag")  # ROS 1 works the same
     assert report.parts == [tmp_path / "ros1.bag"]
     assert json.loads(BagReader(tmp_path / "ros1.bag").meta.config_json)["source"] == "tlog"
+
+
+def test_a_long_log_rotates_into_parts_read_as_one(tmp_path: Path) -> None:
+    prefix = tmp_path / "p.tlog"
+    prefix.write_bytes(FLIGHT.read_bytes()[:400_000])
+    report = tlog_to_bag(prefix, tmp_path / "b", max_bytes=B.MIN_MAX_BYTES)
+    assert len(report.parts) >= 5
+    r = BagReader(tmp_path / "b")
+    assert r.parts == report.parts and r.repairs == []
+    chunks = list(r.autopilot_rx())
+    assert len(chunks) == report.scan.records
+    assert b"".join(c.data for c in chunks) == b"".join(
+        f for _, f in tlog_records(prefix.read_bytes())
+    )
+    assert r.count(B.TOPIC_META) == len(report.parts)

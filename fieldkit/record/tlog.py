@@ -30,6 +30,7 @@ from typing import Any
 
 from fieldkit.errors import FieldkitError
 from fieldkit.record.bag import DEFAULT_MAX_BYTES, BagWriter, Meta
+from fieldkit.vehicle.mavlink import FrameReader, new_codec
 
 #: Record times outside these (1990..2100, microseconds) are not times: the bytes are garbage.
 MIN_TIME_US = 631_152_000 * 10**6
@@ -177,8 +178,6 @@ class TlogReport:
 
 def _vehicle(data: bytes | mmap.mmap) -> int | None:
     """The system id of the log's vehicle: the first HEARTBEAT that is not a ground station."""
-    from fieldkit.vehicle.mavlink import FrameReader, new_codec
-
     reader = FrameReader(new_codec(None, 255, 0))
     for _, frame in tlog_records(data):
         for m in reader.feed(frame):
