@@ -175,3 +175,17 @@ def test_exit_codes(tmp_path: Path, args: list[str], status: int, text: str) -> 
     assert result.exit_code == status, result.output
     errors = [line for line in result.stderr.splitlines() if line.startswith("error: ")]
     assert len(errors) == 1 and text in errors[0], result.stderr
+
+
+def test_info_survives_nonsense_times_in_metadata(tmp_path: Path) -> None:
+    """A metadata.yaml edited or damaged so that its times are no dates (a fuzz find)."""
+    make(tmp_path / "b", 3)
+    meta = tmp_path / "b" / "metadata.yaml"
+    text = meta.read_text()
+    meta.write_text(
+        re.sub(
+            r"nanoseconds_since_epoch: \d+", "nanoseconds_since_epoch: 9999999999999999999999", text
+        )
+    )
+    f = fields(info(tmp_path / "b"))
+    assert f["start"] == "9999999999999999999999 ns since the epoch (not a date)"
