@@ -503,3 +503,24 @@ def test_the_writer_syncs_each_flush_in_the_background(tmp_path: Path) -> None:
     w.close()
     assert syncer.syncs >= 1 and not syncer._thread.is_alive()
     assert check_prefix(BagReader(tmp_path / "s"), sample) == 24
+
+
+@pytest.mark.parametrize("name", STORAGES)
+def test_flushes_wait_for_the_tick_end_but_not_forever(tmp_path: Path, name: str) -> None:
+    """A flush comes at a tick's end once a second has passed, so a cut bag holds whole
+    ticks; a node stalled inside a tick still flushes after two seconds."""
+    now, clock = fake_clock()
+    sample = Sample("stall")
+    path = tmp_path / name
+    w = BagWriter(path, fsync=False, clock=clock)
+    w.meta(sample.meta)
+    sample.write_tick(w, 0)
+    file = path if name.endswith(".bag") else path / f"{name}.mcap"
+    size = file.stat().st_size
+    now[0] = 1.5
+    w.autopilot_rx(1, b"x" * 100, T0_NS)  # a second and a half, inside tick 1: no flush yet
+    assert file.stat().st_size == size
+    now[0] = 2.0
+    w.autopilot_rx(1, b"y", T0_NS)
+    assert file.stat().st_size > size
+    w.close()

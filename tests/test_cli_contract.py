@@ -91,6 +91,10 @@ CASES = [
      "cannot create"),
     (["sitl", "--robots", "0", "--script", "{d}/good.bzz", "--out", "{d}/o"], 1, "--robots"),
     (["vehicle-sim", "--profile", "solo", "--rate", "0"], 1, "--rate"),
+    (["bag", "info", "{d}/file"], 1, "not a bag directory"),
+    (["bag", "info", "{d}"], 1, "not a fieldkit bag"),
+    (["bag", "from-tlog", "{d}/good.bzz", "-o", "{d}/o"], 1, "no MAVLink record"),
+    (["bag", "from-tlog", "{d}/good.bzz"], 2, "Missing option"),
     # values that parse but would never end, or overflow
     (["sitl", "--robots", "1", "--script", "{d}/good.bzz", "--out", "{d}/o", "--seconds", "inf"], 1,
      "--seconds"),
@@ -281,6 +285,11 @@ BASE: dict[str, dict[str, str | list[str]]] = {
     "replay": {"bag": "{d}/good.bo", "speed": "max"},
     "update": {
         "script": "{d}/good.bzz", "keys": "{d}/keys", "out": "{d}/o/p.patch", "base": "{d}/good.bo",
+    },
+    "bag info": {"bag": "{d}/nope"},
+    "bag from-tlog": {
+        "tlog": str(ROOT / "tests" / "data" / "tlogs" / "quad-flight-arducopter.tlog"),
+        "output": "{d}/out.bag",
     },
 }  # fmt: skip
 

@@ -100,3 +100,25 @@ def test_node_finds_the_solo_profile(venv: Path, tmp_path: Path) -> None:
     done = run(cmd, tmp_path)
     assert "unknown profile" not in done.stderr
     assert done.returncode == 1 and "heartbeat" in done.stderr.lower(), done.stderr
+
+
+def test_the_recording_types_ship_as_package_data(venv: Path, tmp_path: Path) -> None:
+    """The .msg files of fieldkit.record are in the wheel: the typestores build from them."""
+    probe = (
+        "import fieldkit.record.types as t; from importlib import resources;"
+        "print(resources.files(t.MSGS_PACKAGE).joinpath('fieldkit_msgs/msg/Tick.msg'));"
+        "print(' '.join(sorted(t.msg_definitions())));"
+        "print(t.typestore(True).generate_msgdef(t.MAVLINK)[1])"
+    )
+    out = run([str(venv / "python"), "-c", probe], tmp_path)
+    assert out.returncode == 0, out.stderr
+    where, names, md5 = out.stdout.split("\n")[:3]
+    assert Path(where).is_file() and not Path(where).is_relative_to(ROOT)
+    assert names.split() == [
+        "fieldkit_msgs/msg/Meta",
+        "fieldkit_msgs/msg/RadioFrame",
+        "fieldkit_msgs/msg/SerialChunk",
+        "fieldkit_msgs/msg/Tick",
+        "mavros_msgs/msg/Mavlink",
+    ]
+    assert md5 == "41093e1fd0f3eea1da2aa33a177e5ba6"

@@ -17,9 +17,9 @@ ROS 1 writers only to close a chunk on demand, which is what crash survival rest
 
 Crash survival: rosbags' writers keep up to 1 MiB in memory before they write a chunk, and
 write the index only at close. `BagWriter` closes the open chunk and hands it to the OS at
-the first tick boundary once `flush_s` has passed (and anyway after twice that, for a bag
-without ticks); a background thread then syncs it to the disk. A kill -9 loses at most the
-data since that flush. `BagReader` reads a bag without its index by scanning its records
+the first tick boundary once `flush_s` has passed (at any message in a bag without ticks);
+a background thread then syncs it to the disk. A kill -9 loses at most the data since that
+flush. `BagReader` reads a bag without its index by scanning its records
 (fieldkit.record.scan) up to the last whole chunk.
 
 Message stamps are the wall time (ns) of each record, made strictly increasing by the writer
@@ -564,16 +564,24 @@ class BagWriter:
                 raise BagError(
                     old, "exists already", "record to a new path, or move the old recording away"
                 )
+        #: The parts written so far, in order.
         self.parts: list[Path] = []
+        #: Messages written (all topics).
+        self.messages = 0
         self._syncer = _Syncer() if fsync else None
         self._part: _Part | None = None
-        self._open_part()
+        try:
+            self._open_part()
+        except BagError:
+            if self._syncer is not None:
+                self._syncer.stop()
+            raise
         self._meta: Meta | None = None
         self._last_stamp = 0
         self._last_flush = clock()
+        self._ticked = False  # whether tick rows come: then flushes and rotations wait for them
         self._rx = FrameReader(new_codec(None, 255, 0))
         self._tx = FrameReader(new_codec(None, 255, 0))
-        self.messages = 0
 
     # ------------------------------------------------------------------ public
 
@@ -844,16 +852,19 @@ class BagWriter:
         except OSError as e:
             raise self._os_error(e) from None
         self.messages += 1
-        if first or self.flush_s is None:
+        if first:
             return
-        # At a tick's end once flush_s has passed; anywhere after twice that (no ticks).
-        waited = self._clock() - self._last_flush
-        if waited >= self.flush_s * (1 if boundary else 2):
-            self.flush()
-        if boundary and part.size() >= self.max_bytes:
+        # In a recording with ticks, a flush and a new part wait for the tick's end, so that a
+        # cut bag holds whole ticks (a flush does not wait past twice flush_s, though: a node
+        # stalled inside a tick); without ticks (a tlog), they come at any message.
+        self._ticked = self._ticked or boundary
+        at_end = boundary or not self._ticked
+        if self.flush_s is not None:
+            waited = self._clock() - self._last_flush
+            if waited >= self.flush_s * (1 if at_end else 2):
+                self.flush()
+        if at_end and part.size() >= self.max_bytes:
             self._rotate()
-        elif not boundary and part.size() >= 2 * self.max_bytes:
-            self._rotate()  # a bag without ticks (a tlog) still rotates
 
     def _os_error(self, e: OSError) -> BagError:
         """A write that failed, as a BagError."""

@@ -26,8 +26,12 @@ _LABEL = 13  # width of the labels column
 
 
 def _when(ns: int) -> str:
-    """A stamp as UTC date and time, to the millisecond."""
-    t = dt.datetime.fromtimestamp(ns / 1e9, tz=dt.UTC)
+    """A stamp as UTC date and time, to the millisecond (as a number if no date can say it:
+    the stamps of a damaged bag's metadata can be anything)."""
+    try:
+        t = dt.datetime.fromtimestamp(ns / 1e9, tz=dt.UTC)
+    except (OverflowError, OSError, ValueError):
+        return f"{ns} ns since the epoch (not a date)"
     return t.strftime("%Y-%m-%d %H:%M:%S.") + f"{t.microsecond // 1000:03d} UTC"
 
 

@@ -30,6 +30,7 @@ from typing import Any
 
 from fieldkit.errors import FieldkitError
 from fieldkit.record.bag import DEFAULT_MAX_BYTES, BagWriter, Meta
+from fieldkit.vehicle.mavlink import FrameReader, new_codec
 
 #: Record times outside these (1990..2100, microseconds) are not times: the bytes are garbage.
 MIN_TIME_US = 631_152_000 * 10**6
@@ -94,20 +95,24 @@ def _plausible(data: bytes | mmap.mmap, i: int, last: int | None) -> bool:
     return last - MAX_BACK_US <= t <= last + MAX_GAP_US
 
 
-def _next_record(data: bytes | mmap.mmap, start: int, last: int | None) -> int:
-    """The first position >= start where a record can start (len(data) if none)."""
+def _next_record(data: bytes | mmap.mmap, start: int, last: int | None, stop: int = -1) -> int:
+    """The first position in [start, stop) where a record can start (`stop`, or len(data) if
+    stop is -1, when there is none)."""
     n = len(data)
+    stop = n if stop < 0 else min(stop, n)
     pos = start
-    while pos < n:
+    while pos < stop:
         # Candidates are 8 bytes before a start byte: find the nearest of either.
-        hits = [h for h in (data.find(b"\xfe", pos + 8), data.find(b"\xfd", pos + 8)) if h >= 0]
+        end = stop + 8
+        found = (data.find(b"\xfe", pos + 8, end), data.find(b"\xfd", pos + 8, end))
+        hits = [h for h in found if h >= 0]
         if not hits:
-            return n
+            return stop
         i = min(hits) - 8
         if _plausible(data, i, last):
             return i
         pos = i + 1
-    return n
+    return stop
 
 
 def tlog_records(
@@ -129,21 +134,28 @@ def tlog_records(
         t = _time(data, i)
         j = i + 8
         end = j + frame_length(data, j)
-        if end <= n and (end == n or _plausible(data, end, t)):
-            nxt = end  # the usual case: the frame's length leads to the next record
-        else:
-            nxt = _next_record(data, j + 1, t)
+        # A record ends where the next one starts. Its frame's length says where, unless a
+        # hit length byte lies: a record found before that point ends it (no real payload
+        # holds a big-endian time of the log followed by a start byte)...
+        nxt = _next_record(data, j + 1, t, end)
+        if nxt < min(end, n):
+            stats.resynced += 1
+        elif end < n and not _plausible(data, end, t):
+            # ...and one that does not start right after it is further on (a length that
+            # claims too little, or noise after the frame), or nowhere: garbage to the end.
+            nxt = _next_record(data, end, t)
             if nxt < n:
-                stats.resynced += 1  # a damaged length: the record runs to the next one
-            elif end < n:
-                # The last record, then bytes that start no record: garbage after it.
+                stats.resynced += 1
+            else:
                 stats.garbage_bytes += n - end
                 stats.garbage_runs += 1
-                nxt = end
+                stats.records += 1
+                yield t, bytes(data[j:end])
+                return
+        else:
+            nxt = min(end, n)  # the usual case (or the last record, cut short)
         stats.records += 1
         yield t, bytes(data[j:nxt])
-        if nxt == end and end < n and not _plausible(data, end, t):
-            return  # the garbage after the last record was counted above
         i = nxt
 
 
@@ -166,8 +178,6 @@ class TlogReport:
 
 def _vehicle(data: bytes | mmap.mmap) -> int | None:
     """The system id of the log's vehicle: the first HEARTBEAT that is not a ground station."""
-    from fieldkit.vehicle.mavlink import FrameReader, new_codec
-
     reader = FrameReader(new_codec(None, 255, 0))
     for _, frame in tlog_records(data):
         for m in reader.feed(frame):
