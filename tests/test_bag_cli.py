@@ -189,3 +189,24 @@ def test_info_survives_nonsense_times_in_metadata(tmp_path: Path) -> None:
     )
     f = fields(info(tmp_path / "b"))
     assert f["start"] == "9999999999999999999999 ns since the epoch (not a date)"
+
+
+def test_bag_plot_draws_a_node_bag_and_a_tlog_bag(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from fieldkit.cli import app
+
+    runner = CliRunner()
+    node_bag = Path(__file__).parent / "data" / "bags" / "sitl-climb" / "robot1"
+    png = tmp_path / "climb.png"
+    result = runner.invoke(app, ["bag", "plot", str(node_bag), "-o", str(png)])
+    assert result.exit_code == 0, result.output
+    assert f"wrote {png}" in result.stderr and png.read_bytes()[:4] == b"\x89PNG"
+    tlog = Path(__file__).parent / "data" / "tlogs" / "quad-flight-arducopter.tlog"
+    bag = tmp_path / "flight"
+    assert runner.invoke(app, ["bag", "from-tlog", str(tlog), "-o", str(bag)]).exit_code == 0
+    result = runner.invoke(app, ["bag", "plot", str(bag), "-o", str(tmp_path / "tlog.png")])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "tlog.png").stat().st_size > 20_000
+    result = runner.invoke(app, ["bag", "plot", str(tmp_path / "nope"), "-o", str(png)])
+    assert result.exit_code == 1 and result.stderr.startswith("error: ")

@@ -1,4 +1,4 @@
-"""`fieldkit bag info` and `fieldkit bag from-tlog`: flight recordings (fieldkit.record)."""
+"""`fieldkit bag info`, `bag plot` and `bag from-tlog`: flight recordings (fieldkit.record)."""
 
 from __future__ import annotations
 
@@ -32,6 +32,31 @@ def info_cmd(
     except BagError as e:
         raise fail(e) from None
     typer.echo(text)
+
+
+@app.command("plot")
+def plot_cmd(
+    bag: Annotated[
+        Path, typer.Argument(help="The recording: a directory (ROS 2, MCAP) or a .bag (ROS 1).")
+    ],
+    output: Annotated[Path, typer.Option("-o", "--output", help="The PNG to write.")],
+) -> None:
+    """Draw BAG: the track coloured by the script's state, the altitude, the battery, and the
+    script's state over time with the safety supervisor's events."""
+    from fieldkit.record.bag import BagError
+    from fieldkit.record.plot import plot_bag
+
+    if output.is_dir():
+        raise fail(f"-o {output}: is a directory, not a file to write")
+    if not output.parent.is_dir():
+        raise fail(f"-o {output}: no directory {output.parent}")
+    try:
+        plot_bag(bag, output)
+    except BagError as e:
+        raise fail(e) from None
+    except OSError as e:
+        raise fail(f"-o {output}: cannot write: {e.strerror or e}") from None
+    wrote(output)
 
 
 @app.command("from-tlog")

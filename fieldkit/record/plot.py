@@ -95,4 +95,37 @@ def plot_flight(flight: Flight, path: Path, title: str | None = None) -> Path:
     return path
 
 
-__all__ = ["plot_flight"]
+def plot_bag(bag: Path, path: Path) -> Path:
+    """Draw the recording `bag` into the PNG `path` (BagError if it is not one). A node's or
+    a simulated robot's bag is drawn from its ticks; an autopilot log's from its /fix and
+    /battery (it has no script, so no state)."""
+    from fieldkit.record.bag import BagReader
+    from fieldkit.record.flight import FlightTick
+    from fieldkit.record.flight_bag import read_flight
+
+    reader = BagReader(bag)
+    if reader.count("/fieldkit/tick"):
+        return plot_flight(read_flight(bag), path)
+    flight = Flight({"robot_id": reader.meta.robot_id, "script_name": "autopilot log"}, "", b"")
+    batteries = list(reader.batteries())
+    k = 0
+    for n, fix in enumerate(reader.fixes()):
+        while k + 1 < len(batteries) and batteries[k + 1].unix_ns <= fix.unix_ns:
+            k += 1
+        battery = batteries[k] if batteries else None
+        sensors: dict[str, object] = {
+            "lat": fix.lat if fix.has_fix else math.nan,
+            "lon": fix.lon if fix.has_fix else math.nan,
+            "alt": fix.alt,
+            "voltage": math.nan if battery is None else battery.voltage,
+            "battery_percent": math.nan if battery is None else battery.percent,
+        }
+        flight.ticks.append(FlightTick(n, fix.unix_ns / 1e9, fix.unix_ns, sensors=sensors))
+    if not flight.ticks:
+        from fieldkit.record.bag import BagError
+
+        raise BagError(bag, "holds no positions to draw", "`fieldkit bag info` says what it holds")
+    return plot_flight(flight, path)
+
+
+__all__ = ["plot_bag", "plot_flight"]
