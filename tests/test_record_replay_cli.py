@@ -125,3 +125,39 @@ def test_the_committed_sitl_bags_replay_identically(robot: int, tmp_path: Path) 
         app, ["replay", str(bag), "--verify", "--speed", "max", "--script", str(changed)]
     )
     assert result.exit_code == 1 and "('takeoff', (3.5,))" in result.stderr, result.output
+
+
+WATCH = """
+function init() { fixes = 0 }
+function step() {
+  if (pose.position.latitude != 0.0) fixes = fixes + 1
+  BVMSTATE = "WATCHING"
+  if (fixes == 1) log("first fix at ", pose.position.latitude)
+}
+"""
+
+
+def test_a_real_tlog_converted_to_a_bag_drives_a_node(tmp_path: Path) -> None:
+    tlog = Path(__file__).parent / "data" / "tlogs" / "quad-flight-arducopter.tlog"
+    data, i, t0 = tlog.read_bytes(), 0, None
+    while i + 10 < len(data):  # the first 100 s of the log, whole records
+        stamp = int.from_bytes(data[i : i + 8], "big")
+        t0 = stamp if t0 is None else t0
+        if stamp - t0 > 100_000_000:
+            break
+        j = i + 8
+        i = j + data[j + 1] + (8 if data[j] == 0xFE else 12 + (13 if data[j + 2] & 1 else 0))
+    short = tmp_path / "short.tlog"
+    short.write_bytes(data[:i])
+    bag = tmp_path / "flight"
+    assert runner.invoke(app, ["bag", "from-tlog", str(short), "-o", str(bag)]).exit_code == 0
+    script = tmp_path / "watch.bzz"
+    script.write_text(WATCH)
+    result = runner.invoke(app, ["replay", str(bag), "--verify"])
+    assert result.exit_code == 2 and "no node outputs" in result.stderr
+    result = runner.invoke(
+        app, ["replay", str(bag), "--script", str(script), "--profile", "solo", "--speed", "max"]
+    )
+    assert result.exit_code == 0, result.output
+    assert "first fix at -35.36" in result.stdout  # the real field (CMAC), 66 s into the log
+    assert "; final state WATCHING;" in result.stdout.splitlines()[-1]
