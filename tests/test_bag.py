@@ -524,3 +524,14 @@ def test_flushes_wait_for_the_tick_end_but_not_forever(tmp_path: Path, name: str
     w.autopilot_rx(1, b"y", T0_NS)
     assert file.stat().st_size > size
     w.close()
+
+
+def test_a_metadata_yaml_with_text_for_numbers_is_read_around(tmp_path: Path) -> None:
+    """rosbags takes metadata.yaml's counts as they are; text there (a fuzz find) makes the
+    reader scan the MCAP file instead, which has everything."""
+    sample = write_sample(tmp_path / "m", 6)
+    meta = tmp_path / "m" / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("message_count: 6", "message_count: '6'", 1))
+    r = BagReader(tmp_path / "m")
+    assert check_prefix(r, sample) == 5
+    assert "a message count is '6', not a number" in r.repairs[0]

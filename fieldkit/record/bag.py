@@ -910,13 +910,21 @@ class _RosbagsSource:
         self.ros1 = ros1
         self.damage = ""
         with self._reader() as r:
+            # A ROS 2 bag's counts and times come from its metadata.yaml, which rosbags takes
+            # as it is: text where a number belongs is a damaged file (and the scan's turn).
             self.conns = [
-                _Conn(c.topic, c.msgtype, c.msgdef.data, c.digest if ros1 else "", c.msgcount)
+                _Conn(
+                    str(c.topic),
+                    str(c.msgtype),
+                    str(c.msgdef.data),
+                    str(c.digest) if ros1 else "",
+                    _number(c.msgcount, "a message count"),
+                )
                 for c in r.connections
             ]
-            count = r.message_count
-            self.start_ns = r.start_time if count else 0
-            self.end_ns = r.end_time - 1 if count else 0
+            count = _number(r.message_count, "the message count")
+            self.start_ns = _number(r.start_time, "the start time") if count else 0
+            self.end_ns = _number(r.end_time, "the end time") - 1 if count else 0
             if ros1:
                 self.storage = "ros1"
             else:
@@ -934,6 +942,13 @@ class _RosbagsSource:
                 return
             for c, t, raw in r.messages(connections=wanted):
                 yield c.topic, t, bytes(raw)
+
+
+def _number(value: object, what: str) -> int:
+    """`value` if it is a whole number of at least 0, else ValueError naming `what`."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"{what} is {value!r}, not a number")
+    return value
 
 
 def _rosbag2_storage(path: Path) -> str:
