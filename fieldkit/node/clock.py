@@ -5,8 +5,8 @@ heartbeats, command retries and timeouts, the time field of the bundle) asks `Ti
 which reads its sources once, when the tick begins, and gives that one value until the tick
 ends. So a tick's decisions depend on the tick's time and its inputs, not on how long its
 own work took; a recording of each tick's time (`clock_s`, `unix_ns`) and inputs gives a
-replay the same decisions (docs/recording.md#determinism). Between ticks the clock runs live,
-for the loop's pacing and the start-up waits.
+replay the same decisions (docs/replay.md, "What it takes for a node to replay exactly").
+Between ticks the clock runs live, for the loop's pacing and the start-up waits.
 """
 
 from __future__ import annotations

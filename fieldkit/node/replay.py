@@ -11,10 +11,10 @@ replay compares what the node did with what was recorded:
     radio       every frame sent, byte for byte
     state       the script-state digest after each tick (and BVMSTATE)
 
-and stops at the first divergence. What it takes for a node to replay exactly
-(docs/recording.md#determinism): one clock reading per tick, seeds from the recording, the
-same start-up bytes, and the autopilot core's clock readings at the start of the loop
-(`AutopilotCore.time_state`), restored after the start-up bytes are fed. The start-up's own
+and stops at the first divergence. What it takes for a node to replay exactly (docs/replay.md):
+one clock reading per tick, seeds from the recording, the same start-up bytes, and the
+autopilot core's clock readings at the start of the loop (`AutopilotCore.time_state`),
+restored after the start-up bytes are fed. The start-up's own
 writes (stream requests, heartbeats while waiting) are not compared: how many there are
 depends on how long the vehicle took to answer.
 """
