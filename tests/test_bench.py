@@ -63,3 +63,10 @@ def test_attack_bench_finds_the_signed_swarm_unchanged(tmp_path: Path) -> None:
     gap = run["mean_bundle_air_bytes"]["signed"] - run["mean_bundle_air_bytes"]["none"]
     assert abs(gap - 16) < 0.5
     assert run["commands"]["bad-signature"] > 0 and "accepted" not in run["commands"]
+
+
+def test_digest_bench_runs(capsys: object) -> None:
+    bench = load("digest_cost")
+    bench.main(["--seconds", "21", "--repeat", "1"])
+    out = capsys.readouterr().out  # type: ignore[attr-defined]
+    assert out.count("of the 100 ms tick") == 2
