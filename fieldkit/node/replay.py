@@ -24,13 +24,11 @@ from __future__ import annotations
 import fcntl
 import os
 import struct
-import tempfile
 import termios
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import bvm
 from fieldkit.node.autopilot_port import MavlinkAutopilot
@@ -38,10 +36,8 @@ from fieldkit.node.clock import TickClock
 from fieldkit.node.node import Node
 from fieldkit.record.compare import Divergence, ReplayError, ReplayReport, compare_tick
 from fieldkit.record.flight import Flight, FlightRecorder, FlightTick
-from fieldkit.robot.bundle_auth import MemoryCounter, Sealer, Verifier, bundle_key
-from fieldkit.robot.link_security import LinkSecurity
-from fieldkit.robot.operator_command import CommandGate
-from fieldkit.robot.profiles import Profile, load_profile
+from fieldkit.record.restore import recorded_profile, recorded_security
+from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.update.keys import RobotKeys
 from fieldkit.update.release import Release
@@ -93,13 +89,6 @@ class ReplayRadio:
 
     def close(self) -> None:
         """Nothing to close."""
-
-
-def _profile(text: str) -> Profile:
-    with tempfile.TemporaryDirectory() as d:
-        path = Path(d) / "recorded.toml"
-        path.write_text(text, encoding="utf-8")
-        return load_profile(path)
 
 
 def _in_queue(fd: int) -> int:
@@ -194,56 +183,6 @@ def _security_meta(node: Node) -> dict[str, object]:
     return out
 
 
-class _RecordedSeq:
-    """A command gate's store in a replay: starts where the recording did, saves nowhere."""
-
-    def __init__(self, last: int) -> None:
-        self.last = last
-
-    def load(self) -> int:
-        """The recorded last sequence number acted on."""
-        return self.last
-
-    def save(self, n: int) -> None:
-        """Nothing to keep: a replay is not a flight."""
-
-
-def _replay_security(
-    meta: dict[str, object], robot_id: int, keys: RobotKeys | None
-) -> tuple[LinkSecurity | None, CommandGate | None]:
-    """The recorded node's security, rebuilt from its meta and `keys`."""
-    mode = meta.get("security")
-    gate = None
-    if "command_last_acted" in meta:
-        if keys is None:
-            raise ReplayError(
-                "the recorded node checked operator commands with its keys: give --keys DIR"
-            )
-        last = int(meta["command_last_acted"])  # type: ignore[call-overload]
-        gate = CommandGate(robot_id, keys.operator_pub, _RecordedSeq(last))
-    if mode is None:
-        return None, gate
-    if mode != "signed":
-        return LinkSecurity(robot_id, "none"), gate
-    if keys is None:
-        raise ReplayError("the flight was signed: give the robot's keys, --keys DIR")
-    key = bundle_key(keys.swarm_key)
-    if key.fingerprint != meta.get("key_fingerprint"):
-        raise ReplayError(
-            f"the flight was signed under swarm key {meta.get('key_fingerprint')}; "
-            f"the keys given are {key.fingerprint}\nhint: give the robot's own --keys DIR"
-        )
-    floors = {int(s): int(c) for s, c in dict(meta.get("floors", {})).items()}  # type: ignore[call-overload]
-    start = int(meta.get("counter_start", 1))  # type: ignore[call-overload]
-    security = LinkSecurity(
-        robot_id,
-        "signed",
-        sealer=Sealer(robot_id, key, MemoryCounter(start)),
-        verifier=Verifier(key, floors=floors),
-    )
-    return security, gate
-
-
 def replay(
     flight: Flight,
     *,
@@ -274,7 +213,7 @@ def replay(
     if profile is None:
         if not flight.profile_toml:
             raise ReplayError("the bag holds no device profile\nhint: give --profile NAME")
-        profile = _profile(flight.profile_toml)
+        profile = recorded_profile(flight.profile_toml)
     if program is None:
         if not flight.bo:
             raise ReplayError("the bag holds no script\nhint: give --script FILE.bzz")
@@ -289,7 +228,7 @@ def replay(
         start = _Start.of(meta) if node_flight else None
     except (KeyError, TypeError, ValueError) as e:
         raise ReplayError(f"the recording's meta lacks what a replay needs: {e}") from None
-    security, gate = _replay_security(meta, rid, keys)
+    security, gate = recorded_security(meta, rid, keys)
     first = flight.ticks[0].clock_s if flight.ticks else 0.0
     clock = ReplayClock(before=first if start is None else start.started_s)
     pty = open_pty()

@@ -131,7 +131,8 @@ def _meta(sim: Simulation, rid: int) -> dict[str, object]:
         "start_sensors": {name: getattr(s, name) for name in SENSOR_FIELDS},
         "max_ticks_per_step": config.max_ticks_per_step,
         "tick_s": 0.1,
-        "security": config.security,
+        # As a node's recording says it: None for a robot without a LinkSecurity.
+        "security": None if robot.runtime.security is None else robot.runtime.security.mode,
         "radio": True,
         "updates": bool(config.updates),
     } | _security(sim, rid)

@@ -11,20 +11,15 @@ recorded inputs, comparing with `fieldkit.record.compare` what the field replay 
 from __future__ import annotations
 
 import math
-import tempfile
 from collections.abc import Callable
-from pathlib import Path
 
 import bvm
 from bvm.digest import state_digest
 from fieldkit.record.compare import ReplayError, ReplayReport, compare_tick
 from fieldkit.record.flight import Flight, FlightRecorder, FlightTick
+from fieldkit.record.restore import recorded_profile, recorded_security
 from fieldkit.robot import geo
 from fieldkit.robot import neighbors as nb
-from fieldkit.robot.bundle_auth import MemoryCounter, Sealer, Verifier, bundle_key
-from fieldkit.robot.link_security import LinkSecurity
-from fieldkit.robot.operator_command import CommandGate
-from fieldkit.robot.profiles import Profile, load_profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.runtime import RobotRuntime, TickRecord
 from fieldkit.robot.script_api import Sensors
@@ -45,39 +40,6 @@ def _sensors(values: dict[str, object]) -> Sensors:
             value = int(value) if value.lstrip("-").isdigit() else value
         setattr(s, name, value)
     return s
-
-
-def _profile(text: str) -> Profile:
-    with tempfile.TemporaryDirectory() as d:
-        path = Path(d) / "recorded.toml"
-        path.write_text(text, encoding="utf-8")
-        return load_profile(path)
-
-
-def _security(
-    meta: dict[str, object], rid: int, keys: RobotKeys | None
-) -> tuple[LinkSecurity | None, CommandGate | None]:
-    gate = None
-    if "command_last_acted" in meta:
-        if keys is None:
-            raise ReplayError("the robot checked operator commands: give --keys DIR")
-        gate = CommandGate(rid, keys.operator_pub)
-        gate.last_acted = int(meta["command_last_acted"])  # type: ignore[call-overload]
-    if meta.get("security") != "signed":
-        return None, gate
-    if keys is None:
-        raise ReplayError("the simulation was signed: give its keys, --keys DIR")
-    key = bundle_key(keys.swarm_key)
-    if key.fingerprint != meta.get("key_fingerprint"):
-        raise ReplayError(
-            f"the simulation was signed under swarm key {meta.get('key_fingerprint')}; "
-            f"the keys given are {key.fingerprint}"
-        )
-    start = int(meta.get("counter_start", 1))  # type: ignore[call-overload]
-    security = LinkSecurity(
-        rid, "signed", sealer=Sealer(rid, key, MemoryCounter(start)), verifier=Verifier(key)
-    )
-    return security, gate
 
 
 def replay_sim(
@@ -101,12 +63,12 @@ def replay_sim(
         max_ticks = int(meta.get("max_ticks_per_step", 1_000_000))  # type: ignore[call-overload]
     except (KeyError, TypeError, ValueError) as e:
         raise ReplayError(f"the recording's meta lacks what a replay needs: {e}") from None
-    profile = _profile(flight.profile_toml)
+    profile = recorded_profile(flight.profile_toml)
     if program is None:
         program = Release(flight.bo, flight.bdb, flight.bpos).program(
             str(meta.get("script_name", "<recorded>"))
         )
-    security, gate = _security(meta, rid, keys)
+    security, gate = recorded_security(meta, rid, keys)
     frame = geo.LocalFrame(lat, lon, alt)
     runtime = RobotRuntime(
         rid, profile, frame, seed=seed, max_ticks=max_ticks, security=security, commands=gate
