@@ -161,3 +161,31 @@ def test_a_real_tlog_converted_to_a_bag_drives_a_node(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert "first fix at -35.36" in result.stdout  # the real field (CMAC), 66 s into the log
     assert "; final state WATCHING;" in result.stdout.splitlines()[-1]
+
+
+def test_a_signed_sitl_flight_with_an_update_replays_with_the_keys(tmp_path: Path) -> None:
+    from fieldkit.update.keys import init_keys
+
+    init_keys(tmp_path / "keys")
+    climb = Path(__file__).parent / "data" / "bags" / "climb.bzz"
+    v2 = tmp_path / "climb2.bzz"
+    v2.write_text(climb.read_text().replace("uav_takeoff(3.0)", "uav_takeoff(3.5)"))
+    bags = tmp_path / "bags"
+    result = runner.invoke(
+        app,
+        ["sitl", "--robots", "2", "--script", str(climb), "--seconds", "12", "--keys",
+         str(tmp_path / "keys"), "--out", str(tmp_path / "out"), "--record", str(bags),
+         "--update", f"2:{v2}:1"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "every robot switched" in result.stdout
+    for robot in (1, 2):
+        bag = bags / f"robot{robot}"
+        result = runner.invoke(
+            app,
+            ["replay", str(bag), "--verify", "--speed", "max", "--keys", str(tmp_path / "keys")],
+        )
+        assert result.exit_code == 0, result.output  # the patch, the barrier, the switch
+        assert result.stdout.splitlines()[-1].startswith("replay: identical: ")
+    result = runner.invoke(app, ["replay", str(bags / "robot1"), "--verify"])
+    assert result.exit_code == 2 and "--keys" in result.stderr

@@ -24,11 +24,13 @@ from __future__ import annotations
 import fcntl
 import os
 import struct
+import tempfile
 import termios
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import bvm
 from fieldkit.node.autopilot_port import MavlinkAutopilot
@@ -37,10 +39,13 @@ from fieldkit.node.node import Node
 from fieldkit.record.compare import Divergence, ReplayError, ReplayReport, compare_tick
 from fieldkit.record.flight import Flight, FlightRecorder, FlightTick
 from fieldkit.record.restore import recorded_profile, recorded_security
+from fieldkit.robot.link_security import LinkSecurity
+from fieldkit.robot.operator_command import CommandGate
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.update.keys import RobotKeys
 from fieldkit.update.release import Release
+from fieldkit.update.store import VersionStore
 from fieldkit.vehicle.link import Autopilot
 from fieldkit.vehicle.pty import open_pty
 
@@ -152,19 +157,64 @@ def recording_meta(
     before its first tick): the node's identity and options, its home and start time, and
     the autopilot core's clock readings as the loop begins."""
     frame = node.frame
+    return (
+        {
+            "robot_id": node.robot_id,
+            "seed": seed,
+            "script_name": script_name,
+            "globals": dict(globals_),
+            "commands": [c.text() for c in commands],
+            "home": [frame.lat, frame.lon, frame.alt],
+            "started_s": node.started,
+            "core_time": link.time_state(),
+            "loop_rate_hz": node.profile.node.loop_rate_hz,
+            "radio": node.radio is not None,
+            "started_unix_ns": node.tick_clock.wall(),
+        }
+        | _security_meta(node)
+        | _update_meta(node)
+    )
+
+
+def _update_meta(node: Node) -> dict[str, object]:
+    """The version store's state a replay starts from (a node with --state-dir and keys)."""
+    store = node.store
+    if node.updater is None or store is None:
+        return {}
+    committed = store.current
+    assert committed is not None  # an updater needs one
     return {
-        "robot_id": node.robot_id,
-        "seed": seed,
-        "script_name": script_name,
-        "globals": dict(globals_),
-        "commands": [c.text() for c in commands],
-        "home": [frame.lat, frame.lon, frame.alt],
-        "started_s": node.started,
-        "core_time": link.time_state(),
-        "loop_rate_hz": node.profile.node.loop_rate_hz,
-        "radio": node.radio is not None,
-        "started_unix_ns": node.tick_clock.wall(),
-    } | _security_meta(node)
+        "update": {
+            "version": committed.version,
+            "highest": committed.highest,
+            "bad": sorted(committed.bad),
+            "previous": len(committed.previous),
+            "patches": len(store.patches()),
+        }
+    }
+
+
+def _replay_store(meta: dict[str, object], flight: Flight, root: Path) -> VersionStore | None:
+    """A version store in `root` holding what the recorded node's held when its loop began
+    (a store of one version: one seeded, or updated to before the flight began)."""
+    update = meta.get("update")
+    if not isinstance(update, dict):
+        return None
+    version = int(update.get("version", 0))
+    if (
+        update.get("previous")
+        or update.get("bad")
+        or update.get("patches")
+        or (int(update.get("highest", version)) != version)
+    ):
+        raise ReplayError(
+            "the recorded node's version store held earlier versions, rolled-back ones or "
+            "patches when the flight began: replaying such a store is not built yet"
+        )
+    store = VersionStore(root)
+    store.commit(version, store.put(Release(flight.bo, flight.bdb, flight.bpos)),
+                 reason="the recorded version, for a replay")  # fmt: skip
+    return store
 
 
 def _security_meta(node: Node) -> dict[str, object]:
@@ -231,6 +281,33 @@ def replay(
     security, gate = recorded_security(meta, rid, keys)
     first = flight.ticks[0].clock_s if flight.ticks else 0.0
     clock = ReplayClock(before=first if start is None else start.started_s)
+    with tempfile.TemporaryDirectory() as state:
+        store = _replay_store(meta, flight, Path(state))
+        if store is not None and keys is None:
+            raise ReplayError("the recorded node took over-the-air updates: give --keys DIR")
+        return _replay(flight, profile, program, rid, seed, globals_, commands, start,
+                       security, gate, clock, verify, speed, progress, store, keys)  # fmt: skip
+
+
+def _replay(
+    flight: Flight,
+    profile: Profile,
+    program: bvm.Program,
+    rid: int,
+    seed: int,
+    globals_: dict[str, object],
+    commands: list[RcCommand],
+    start: _Start | None,
+    security: LinkSecurity | None,
+    gate: CommandGate | None,
+    clock: ReplayClock,
+    verify: bool,
+    speed: float | None,
+    progress: Callable[[int, int], None] | None,
+    store: VersionStore | None,
+    keys: RobotKeys | None,
+) -> ReplayReport:
+    meta = flight.meta
     pty = open_pty()
     try:
         link = Autopilot.from_profile(profile, pty.slave_path, clock=clock.now)
@@ -252,6 +329,8 @@ def replay(
                 recorder=run.recorder,
                 security=security,
                 command_gate=gate,
+                store=store,
+                keys=keys if store is not None else None,
             )
             return run.ticks(node, ticks, speed, progress)
         finally:
