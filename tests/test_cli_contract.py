@@ -283,6 +283,7 @@ BASE: dict[str, dict[str, str | list[str]]] = {
     "vehicle-sim": {"profile": "solo", "rate": "0"},
     "sitl": {"robots": "1", "script": "{d}/good.bzz", "out": "{d}/o", "seconds": "0.1"},
     "replay": {"bag": "{d}/good.bo", "speed": "max"},
+    "bag plot": {"bag": "{d}/good.bo", "output": "{d}/o.png"},
     "update": {
         "script": "{d}/good.bzz", "keys": "{d}/keys", "out": "{d}/o/p.patch", "base": "{d}/good.bo",
     },
