@@ -258,6 +258,7 @@ class SitlConfig:
     security: str = "none"  # the nodes' --security; signed needs keys (`keys`, or --update's)
     keys: Path | None = None  # a `fieldkit keys init` directory (else --update makes keys)
     record: Path | None = None  # each node records its flight to record/robot{ID}
+    ros1: bool = False  # record ROS 1 bags, record/robot{ID}.bag
 
 
 def _homes(cfg: SitlConfig) -> list[tuple[float, float]]:
@@ -324,7 +325,8 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
             ]
             argv += ["--security", cfg.security]
             if cfg.record is not None:
-                argv += ["--record", str(cfg.record / f"robot{r.id}")]
+                suffix = ".bag" if cfg.ros1 else ""
+                argv += ["--record", str(cfg.record / f"robot{r.id}{suffix}")]
             if updating is not None or cfg.security == "signed":
                 # Each node's versions and bundle counter, fresh for the run.
                 if updating is None:

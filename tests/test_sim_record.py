@@ -103,3 +103,21 @@ def test_sim_run_record_then_replay_verify_on_the_command_line(tmp_path: Path) -
          "--out", str(tmp_path / "run2"), "--record", str(bags)],
     )  # fmt: skip
     assert result.exit_code == 1 and "exists already" in result.stderr
+
+
+def test_ros1_bags_record_and_replay_the_same(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from fieldkit.cli import app
+
+    runner = CliRunner()
+    bags = tmp_path / "bags"
+    result = runner.invoke(
+        app,
+        ["sim", "run", "task_allocation.bzz", "--robots", "2", "--seconds", "2",
+         "--out", str(tmp_path / "run"), "--record", str(bags), "--ros1"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert (bags / "robot1.bag").is_file()
+    result = runner.invoke(app, ["replay", str(bags / "robot1.bag"), "--verify"])
+    assert result.exit_code == 0, result.output

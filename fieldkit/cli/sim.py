@@ -88,6 +88,9 @@ def run_cmd(
             help="Record every robot's flight as a rosbag, DIR/robot{ID} (fieldkit replay).",
         ),
     ] = None,
+    ros1: Annotated[
+        bool, typer.Option("--ros1", help="With --record: ROS 1 bags, DIR/robot{ID}.bag.")
+    ] = False,
     attack: Annotated[
         str | None,
         typer.Option(
@@ -149,7 +152,7 @@ def run_cmd(
     if record is not None:
         out_dir(record, "--record")
         try:
-            bags = sim.record(record)
+            bags = sim.record(record, ros1=ros1)
         except FieldkitError as e:  # a bag of that name exists already
             raise fail(e) from None
     warn_if_insecure(mode)

@@ -61,6 +61,9 @@ def sitl_cmd(
             help="Each node records its flight as a rosbag, DIR/robot{ID} (fieldkit replay).",
         ),
     ] = None,
+    ros1: Annotated[
+        bool, typer.Option("--ros1", help="With --record: ROS 1 bags, DIR/robot{ID}.bag.")
+    ] = False,
 ) -> None:
     """Run SCRIPT on N real nodes against simulated autopilots, over a simulated radio."""
     import bvm
@@ -117,7 +120,12 @@ def sitl_cmd(
     out_dir(out)  # an --out that is a file fails here, with `error:`
     if record is not None:
         out_dir(record, "--record")
-        taken = [f"robot{i}" for i in range(1, robots + 1) if (record / f"robot{i}").exists()]
+        suffix = ".bag" if ros1 else ""
+        taken = [
+            f"robot{i}{suffix}"
+            for i in range(1, robots + 1)
+            if (record / f"robot{i}{suffix}").exists()
+        ]
         if taken:
             raise fail(f"--record {record}: {', '.join(taken)} exist already\n"
                        f"hint: record to a new directory")  # fmt: skip
@@ -138,6 +146,7 @@ def sitl_cmd(
         security=mode,
         keys=keys,
         record=record,
+        ros1=ros1,
     )
     with progress_bar(f"SITL: {robots} robots", round(seconds)) as advance:
         try:

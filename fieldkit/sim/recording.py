@@ -35,8 +35,9 @@ HOST = "sim"
 class SimRecording:
     """The recorders and bag writers of a simulation's robots."""
 
-    def __init__(self, sim: Simulation, out: Path) -> None:
-        """One bag per robot in `out` (created); BagError if one exists already."""
+    def __init__(self, sim: Simulation, out: Path, *, ros1: bool = False) -> None:
+        """One bag per robot in `out` (created): `robot{ID}` (ROS 2, MCAP), or `robot{ID}.bag`
+        with `ros1`; BagError if one exists already."""
         out.mkdir(parents=True, exist_ok=True)
         profile = sim.profile
         text = profile.path.read_text(encoding="utf-8") if profile.path is not None else ""
@@ -49,7 +50,7 @@ class SimRecording:
         try:
             for rid, robot in sim.robots.items():
                 flight = Flight(_meta(sim, rid), text, release.bo, release.bdb, release.bpos)
-                path = out / f"robot{rid}"
+                path = out / f"robot{rid}{'.bag' if ros1 else ''}"
                 # A simulation does not crash mid-tick as a robot does: flush at the end.
                 writer = BagWriter(path, flush_s=None, fsync=False)
                 self.writers.append(writer)

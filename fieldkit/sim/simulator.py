@@ -543,12 +543,13 @@ class Simulation:
         if self.recording is not None:
             self.recording.sent(rid, frame)
 
-    def record(self, out: Path) -> list[Path]:
-        """Record every robot's flight from now on, one bag each in `out` (BagError if one
-        exists already); the bags' paths. Call before `run`; `close_recording` after."""
+    def record(self, out: Path, *, ros1: bool = False) -> list[Path]:
+        """Record every robot's flight from now on, one bag each in `out` (ROS 2 with MCAP,
+        or `ros1` bags; BagError if one exists already); the bags' paths. Call before `run`;
+        `close_recording` after."""
         from fieldkit.sim.recording import SimRecording
 
-        self.recording = SimRecording(self, out)
+        self.recording = SimRecording(self, out, ros1=ros1)
         return list(self.recording.paths)
 
     def close_recording(self) -> None:
