@@ -189,3 +189,23 @@ def test_a_signed_sitl_flight_with_an_update_replays_with_the_keys(tmp_path: Pat
         assert result.stdout.splitlines()[-1].startswith("replay: identical: ")
     result = runner.invoke(app, ["replay", str(bags / "robot1"), "--verify"])
     assert result.exit_code == 2 and "--keys" in result.stderr
+
+
+def test_a_recording_stops_at_its_size_cap_and_what_it_kept_replays(
+    tmp_path: Path, vehicle: str
+) -> None:
+    script = tmp_path / "fly.bzz"
+    script.write_text(FLY)
+    bag = tmp_path / "flight"
+    result = runner.invoke(
+        app,
+        ["node", "--robot-id", "1", "--profile", "solo", "--script", str(script),
+         "--autopilot", vehicle, "--radio", "none", "--seconds", "4", "--record", str(bag),
+         "--record-max-mb", "0.03"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "recording stopped:" in result.stdout and "its cap" in result.stdout
+    result = runner.invoke(app, ["replay", str(bag), "--verify", "--speed", "max"])
+    assert result.exit_code == 0, result.output
+    ticks = int(result.stdout.splitlines()[-1].split("identical: ")[1].split(" ticks")[0])
+    assert 5 <= ticks < 40  # the beginning, up to the cap

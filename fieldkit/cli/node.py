@@ -148,6 +148,13 @@ def node_cmd(
             help="Record the flight as a rosbag: a directory (ROS 2, MCAP), or PATH.bag (ROS 1).",
         ),
     ] = None,
+    record_max_mb: Annotated[
+        float,
+        typer.Option(
+            "--record-max-mb",
+            help="Stop recording once the bag's parts together reach this size.",
+        ),
+    ] = 2048.0,
     include: Annotated[
         list[Path] | None, typer.Option("-I", "--include", help="Extra include directory.")
     ] = None,
@@ -216,6 +223,8 @@ def node_cmd(
         out_dir(out)  # now, not after an hour's run
     if record is not None:
         check_record_path(record)
+        if not (math.isfinite(record_max_mb) and record_max_mb > 0):
+            raise fail(f"--record-max-mb must be > 0, got {record_max_mb:g}")
     # The radio first: a missing XBee fails at once, not after the wait for the autopilot.
     link_radio = open_node_radio(prof, radio, rid, say)
     warn_if_insecure(mode)
@@ -240,6 +249,7 @@ def node_cmd(
             security=link_security,
             command_gate=gate,
             record=record,
+            record_max_bytes=int(record_max_mb * 2**20),
             script_name=label,
         )
     finally:
@@ -334,6 +344,7 @@ def _run(
     security: LinkSecurity,
     command_gate: CommandGate | None,
     record: Path | None = None,
+    record_max_bytes: int = 2**31,
     script_name: str = "",
 ) -> None:
     """Connect to the autopilot, run the loop, stop cleanly; exit 1 if the script is failed."""
@@ -353,7 +364,11 @@ def _run(
             link = Autopilot.from_profile(prof, autopilot, clock=tick_clock.now)
         except AutopilotError as e:
             raise fail(e) from None
-        recording = None if record is None else NodeRecording(record, prof, program)
+        recording = (
+            None
+            if record is None
+            else NodeRecording(record, prof, program, max_total_bytes=record_max_bytes, say=say)
+        )
         if recording is not None:
             recording.tap(link)
         try:

@@ -8,26 +8,57 @@ tick as it ends. The bag writer flushes every second, so a power cut loses at mo
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import bvm
 from fieldkit.node.node import Node
 from fieldkit.node.replay import recording_meta
 from fieldkit.record.bag import BagWriter
-from fieldkit.record.flight import Flight, FlightRecorder
+from fieldkit.record.flight import Flight, FlightRecorder, FlightTick
 from fieldkit.record.flight_bag import FlightBag
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.update.release import Release
 from fieldkit.vehicle.link import Autopilot
 
+#: The most a node's recording may take on disk, all its parts together, by default.
+DEFAULT_MAX_TOTAL_BYTES = 2 * 1024**3
+#: Ticks between two looks at the recording's size on disk.
+SIZE_CHECK_TICKS = 10
+
+
+def _size(path: Path) -> int:
+    """Bytes of a part: a ROS 1 file, or a ROS 2 directory's files."""
+    try:
+        if path.is_dir():
+            return sum(f.stat().st_size for f in path.iterdir() if f.is_file())
+        return path.stat().st_size
+    except OSError:
+        return 0
+
 
 class NodeRecording:
-    """One flight's recording: `tap` the link, `begin` once the node exists, `close` at the end."""
+    """One flight's recording: `tap` the link, `begin` once the node exists, `close` at the end.
 
-    def __init__(self, path: Path, profile: Profile, program: bvm.Program) -> None:
+    The bag rotates into parts (`BagWriter`'s `max_bytes`); all parts together stay under
+    `max_total_bytes`: past it the recording stops, keeping the flight's beginning (what a
+    replay starts from), and says so once, so a day in the field never fills the disk."""
+
+    def __init__(
+        self,
+        path: Path,
+        profile: Profile,
+        program: bvm.Program,
+        *,
+        max_total_bytes: int = DEFAULT_MAX_TOTAL_BYTES,
+        say: Callable[[str], None] | None = None,
+    ) -> None:
         self.path = path
+        self.max_total_bytes = max_total_bytes
+        self.say = say
+        self.stopped = False
+        self._ticks = 0
         release = Release.from_program(program)
         text = profile.path.read_text(encoding="utf-8") if profile.path is not None else ""
         self.flight = Flight({}, text, release.bo, release.bdb, release.bpos)
@@ -56,11 +87,34 @@ class NodeRecording:
         bag = FlightBag(self.writer)
         bag.start(self.flight)
         self.flight.startup_rx, self.flight.startup_tx = [], []  # written: not kept
-        self.recorder.on_tick = bag.tick
+
+        def tick(t: FlightTick) -> None:
+            if self.stopped:
+                return
+            bag.tick(t)
+            self._ticks += 1
+            if self._ticks % SIZE_CHECK_TICKS == 0:
+                self._check_size()
+
+        self.recorder.on_tick = tick
+
+    def _check_size(self) -> None:
+        """Stop recording once the parts together reach the cap."""
+        writer = self.writer
+        assert writer is not None
+        total = sum(_size(p) for p in writer.parts)
+        if total >= self.max_total_bytes:
+            self.stopped = True
+            writer.close()
+            if self.say is not None:
+                self.say(
+                    f"recording stopped: {self.path} reached {total / 2**20:.0f} MiB, its cap "
+                    f"(--record-max-mb); the flight goes on unrecorded"
+                )
 
     def close(self) -> None:
         """Close the bag (what the ticks wrote is already flushed)."""
-        if self.writer is not None:
+        if self.writer is not None and not self.stopped:
             self.writer.close()
 
 
