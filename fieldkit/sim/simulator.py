@@ -276,6 +276,9 @@ class Simulation:
         self.tick = 0
         self.on_log = on_log
         self.log: list[str] = []  # every robot's log lines, in time order
+        #: `record(DIR)`: every robot's flight into a bag (fieldkit/sim/recording.py). Set
+        #: before any robot starts: a script logs from its global code on.
+        self.recording: SimRecording | None = None
         # Script errors as they happened: robot, simulated time, the error.
         self.errors: list[dict[str, object]] = []
         self._failed: set[int] = set()  # robots whose error is in `errors`
@@ -347,8 +350,6 @@ class Simulation:
             if self.updates is not None:
                 self.updates.attach(runtime, self._sink(rid))
         self.attacker = self._attacker(config) if config.attacks else None
-        #: `record(DIR)`: every robot's flight into a bag (fieldkit/sim/recording.py).
-        self.recording: SimRecording | None = None
 
     def _attacker(self, config: SimConfig) -> Attacker:
         """The hostile radio, at the middle of the swarm's start positions."""
