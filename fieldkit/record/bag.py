@@ -547,8 +547,10 @@ class BagWriter:
         """Create the bag's first part at `path` (a directory; a `.bag` file for ROS 1).
 
         `max_bytes`: start a new part when one reaches this size. `flush_s`: the most data, in
-        seconds of `clock`, a crash may lose (None: flush only at close, for conversions).
-        `fsync`: also sync each flush to the disk (a power cut), in a background thread.
+        seconds of `clock`, a crash may lose (None: no timed flush, only rosbags' own at 1 MiB
+        chunks and the close: for conversions). `fsync`: also sync each flush to the disk (a
+        power cut), in a background thread. Close it (or use `with`): a writer never closed
+        is a bag cut short.
         """
         self.path = Path(path)
         self.ros1 = self.path.suffix == ".bag"
