@@ -472,13 +472,15 @@ class _Syncer:
 
     A flush hands the data to the OS, which survives a kill -9; only a sync survives a power
     cut. A sync can take tens of milliseconds on an SD card, too long for the tick loop, so a
-    thread does it. The lock keeps it from syncing a descriptor the writer is closing.
+    thread does it, on a duplicate of the file's descriptor: the writer never waits for it
+    (not even to close the file), and a descriptor number reused after a close is never synced
+    by mistake.
     """
 
     def __init__(self) -> None:
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # held only to hand work over, never across a sync
         self._wake = threading.Event()
-        self._fd: int | None = None
+        self._pending: int | None = None
         self._dirs: list[Path] = []
         self._stop = False
         self.syncs = 0
@@ -486,20 +488,18 @@ class _Syncer:
         self._thread.start()
 
     def request(self, fd: int, new_dir: Path | None = None) -> None:
-        """Sync `fd` soon (and `new_dir`, whose new entry must survive too)."""
+        """Sync `fd`'s file soon (and `new_dir`, whose new entry must survive too)."""
+        dup = os.dup(fd)
         with self._lock:
-            self._fd = fd
+            old, self._pending = self._pending, dup
             if new_dir is not None:
                 self._dirs.append(new_dir)
+        if old is not None:
+            os.close(old)  # a newer flush supersedes a sync that has not started
         self._wake.set()
 
-    def forget(self) -> None:
-        """No sync of the current descriptor after this returns (it is about to close)."""
-        with self._lock:
-            self._fd = None
-
     def stop(self) -> None:
-        """End the thread."""
+        """Finish the sync in hand, then end the thread."""
         self._stop = True
         self._wake.set()
         self._thread.join()
@@ -508,18 +508,22 @@ class _Syncer:
         while True:
             self._wake.wait()
             self._wake.clear()
+            with self._lock:
+                fd, self._pending = self._pending, None
+                dirs, self._dirs = self._dirs, []
+            try:
+                if fd is not None:
+                    os.fdatasync(fd)
+                for folder in dirs:
+                    _sync_dir(folder)
+            except OSError:
+                pass  # a failing disk shows up in the writes, which raise
+            finally:
+                if fd is not None:
+                    os.close(fd)
+            self.syncs += 1
             if self._stop:
                 return
-            with self._lock:
-                try:
-                    if self._fd is not None:
-                        os.fdatasync(self._fd)
-                    for folder in self._dirs:
-                        _sync_dir(folder)
-                except OSError:
-                    pass  # a failing disk shows up in the writes, which raise
-                self._dirs.clear()
-                self.syncs += 1
 
 
 def _sync_dir(folder: Path) -> None:
@@ -546,8 +550,10 @@ class BagWriter:
         """Create the bag's first part at `path` (a directory; a `.bag` file for ROS 1).
 
         `max_bytes`: start a new part when one reaches this size. `flush_s`: the most data, in
-        seconds of `clock`, a crash may lose (None: flush only at close, for conversions).
-        `fsync`: also sync each flush to the disk (a power cut), in a background thread.
+        seconds of `clock`, a crash may lose (None: no timed flush, only rosbags' own at 1 MiB
+        chunks and the close: for conversions). `fsync`: also sync each flush to the disk (a
+        power cut), in a background thread. Close it (or use `with`): a writer never closed
+        is a bag cut short.
         """
         self.path = Path(path)
         self.ros1 = self.path.suffix == ".bag"
@@ -707,8 +713,6 @@ class BagWriter:
         if part is None:
             return
         try:
-            if self._syncer is not None:
-                self._syncer.forget()
             part.close()
         except OSError as e:
             raise self._os_error(e) from None
@@ -755,8 +759,6 @@ class BagWriter:
     def _rotate(self) -> None:
         """Close the full part and go on in the next one, which starts with the meta again."""
         part = self._open()
-        if self._syncer is not None:
-            self._syncer.forget()
         try:
             part.close()
         except OSError as e:

@@ -30,6 +30,15 @@ BATTERY_STATE = "sensor_msgs/msg/BatteryState"
 
 OWN_TYPES = (MAVLINK, META, SERIAL_CHUNK, RADIO_FRAME, TICK)
 """The types registered from our `.msg` files."""
+USED_TYPES = (
+    *OWN_TYPES,
+    NAV_SAT_FIX,
+    BATTERY_STATE,
+    "sensor_msgs/msg/NavSatStatus",
+    "std_msgs/msg/Header",
+    "builtin_interfaces/msg/Time",
+)
+"""Every type a bag's messages hold, nested ones included."""
 
 
 def msg_definitions() -> dict[str, str]:
@@ -61,6 +70,10 @@ def typestore(ros1: bool) -> Typestore:
     if missing:  # a broken install: package data that did not ship
         raise RuntimeError(f"{MSGS_PACKAGE}: no .msg file for {', '.join(sorted(missing))}")
     store.register(types)
+    # rosbags generates each type's (de)serializers on its first use: tens of milliseconds,
+    # which would land on a node's first recorded tick. Generate them now.
+    for name in USED_TYPES:
+        store.get_msgdef(name)
     return store
 
 
@@ -79,6 +92,7 @@ __all__ = [
     "RADIO_FRAME",
     "SERIAL_CHUNK",
     "TICK",
+    "USED_TYPES",
     "message_class",
     "msg_definitions",
     "typestore",

@@ -20,6 +20,7 @@ Failures are printed with their replay id. The last line is `inputs: N, failures
 
 from __future__ import annotations
 
+import atexit
 import random
 import shutil
 import struct
@@ -125,7 +126,9 @@ def bases() -> dict[str, Base]:
 def workdir() -> Path:
     """A scratch folder for the inputs' files (one per process)."""
     if not _workdir:
-        _workdir.append(Path(tempfile.mkdtemp(prefix="bag-fuzz-")))
+        folder = Path(tempfile.mkdtemp(prefix="bag-fuzz-"))
+        atexit.register(shutil.rmtree, folder, True)  # whoever ran the inputs: a campaign, a test
+        _workdir.append(folder)
     return _workdir[0]
 
 
@@ -306,11 +309,7 @@ def replay(spec: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point: --count N runs exactly N inputs (no time limit)."""
-    try:
-        return runner.counted_main(argv, __doc__, run, replay, Stats, slice_inputs=SLICE)
-    finally:
-        for folder in _workdir:
-            shutil.rmtree(folder, ignore_errors=True)
+    return runner.counted_main(argv, __doc__, run, replay, Stats, slice_inputs=SLICE)
 
 
 if __name__ == "__main__":
