@@ -634,7 +634,7 @@ def _run(
         summary["stop"] = {"action": stop.action, "acknowledged": stop.acknowledged}
     if out is not None:
         write_json(out / "summary.json", summary)
-    if service.reloading:
+    if service.reloading and service.signals.block_for_restart():
         notifier.close()
         _restart_in_place(say)
     if failed is not None:

@@ -41,6 +41,9 @@ STOP_ACK_TIMEOUT_S = 10.0
 #: Ticks between two STATUS= lines (about one a second at 10 Hz).
 STATUS_EVERY_TICKS = 10
 
+#: The signals the node handles.
+SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
 #: A reload check: None if the new settings may run, else why not.
 ReloadCheck = Callable[[], str | None]
 
@@ -65,8 +68,11 @@ class ServiceSignals:
         self.reload_requested = False
         self._saved: dict[int, Any] = {}
         if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            for sig in SIGNALS:
                 self._saved[sig] = signal.signal(sig, self._handle)
+            # A node restarted in place inherits them blocked (`block_for_restart`): one
+            # that came during the restart is delivered now, to these handlers.
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, SIGNALS)
 
     def _handle(self, signum: int, _frame: FrameType | None) -> None:
         if signum == signal.SIGHUP:
@@ -78,6 +84,12 @@ class ServiceSignals:
         if self.node is None:
             raise StartupStopped(signum)
         self.node.stop()
+
+    def block_for_restart(self) -> bool:
+        """Hold the signals back across a restart in place (they stay pending through
+        execv, and the new process takes them); False if a stop came first: no restart."""
+        signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
+        return self.stop_signal is None
 
     def restore(self) -> None:
         """Put back the handlers found on creation."""
