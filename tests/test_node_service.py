@@ -15,6 +15,7 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -369,3 +370,27 @@ def test_a_line_the_journal_refuses_goes_to_stdout_with_its_priority(tmp_path: P
         "robot 4: error: disk full\n"
     )
     assert [priority_of(t) for t in ("error: a", "warning: b", "tick")] == [ERR, WARNING, INFO]
+
+
+@pytest.mark.parametrize(
+    ("profile", "action", "mode"), [("husky", "stop", "HOLD"), ("solo", "land", "LAND")]
+)
+def test_the_stop_order_is_acknowledged_and_takes_effect(
+    profile: str, action: str, mode: str
+) -> None:
+    """A ground robot stops in its hold mode; a UAV whose profile says land lands."""
+    from fieldkit.node.service import stop_vehicle
+    from fieldkit.vehicle.link import Autopilot
+
+    lines: list[str] = []
+    with (
+        pty_vehicle(profile=profile) as path,
+        Autopilot.from_profile(load_profile(profile), path) as link,
+    ):
+        link.wait_heartbeat(HANG_GUARD_S)
+        result = stop_vehicle(link, action, lines.append)
+        deadline = time.monotonic() + HANG_GUARD_S  # a hang guard: the mode follows the ACK
+        while link.telemetry.mode != mode and time.monotonic() < deadline:
+            link.poll(0.05)
+    assert result.acknowledged and result.action == action
+    assert lines == [f"stop: {action} acknowledged by the autopilot"]

@@ -567,3 +567,20 @@ def test_a_profile_that_asks_for_signed_bundles_needs_keys(tmp_path: Path) -> No
     )  # fmt: skip
     assert result.exit_code == 1
     assert "profile's [radio] security" in result.stderr and "--keys" in result.stderr
+
+
+def test_the_stop_action_defaults_by_vehicle_and_is_checked(tmp_path: Path) -> None:
+    """`failsafe.on_stop`: hold for a UAV, stop for a ground robot; a ground robot cannot
+    land, and rtl is no stop action (the node must not fly off when told to stop)."""
+    assert load_profile("solo").failsafe.on_stop == "hold"
+    assert load_profile("husky").failsafe.on_stop == "stop"
+    for name, value, problem in [
+        ("husky", "land", 'must be one of "stop", "hold"'),
+        ("solo", "rtl", 'must be one of "hold", "land"'),
+    ]:
+        path = load_profile(name).path
+        assert path is not None
+        mine = tmp_path / f"{name}.toml"
+        mine.write_text(path.read_text().replace("[failsafe]", f'[failsafe]\non_stop = "{value}"'))
+        with pytest.raises(ProfileError, match=f"failsafe.on_stop: {problem}"):
+            load_profile(mine)
