@@ -126,7 +126,8 @@ def test_ready_watchdog_status_then_a_safe_stop_on_sigterm(
     tmp_path: Path, notify: NotifySocket
 ) -> None:
     with pty_vehicle() as vehicle:
-        proc = start(config(tmp_path, vehicle), notify)
+        recorded = '[record]\ndir = "bags"\nkeep_mb = 100\n'  # made by the node
+        proc = start(config(tmp_path, vehicle, extra=recorded), notify)
         before_ready = notify.wait_for("READY=1")
         read_until(proc, "robot 1: tick")
         pings = notify.wait_for("WATCHDOG=1")  # the loop pings while it ticks
@@ -144,6 +145,17 @@ def test_ready_watchdog_status_then_a_safe_stop_on_sigterm(
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["stop"] == {"action": "hold", "acknowledged": True}
     assert summary["ticks"] >= 1
+    # The flight was recorded to a new bag under record.dir, and replays as it flew.
+    (bag,) = (tmp_path / "bags").iterdir()
+    assert bag.name.startswith("flight-")
+    replayed = subprocess.run(
+        [sys.executable, "-m", "fieldkit", "replay", str(bag), "--verify", "--speed", "max"],
+        capture_output=True,
+        text=True,
+        timeout=HANG_GUARD_S,
+    )
+    assert replayed.returncode == 0, replayed.stdout + replayed.stderr
+    assert f"{summary['ticks']} ticks" in replayed.stdout
 
 
 def test_no_ready_without_a_heartbeat(tmp_path: Path, notify: NotifySocket) -> None:

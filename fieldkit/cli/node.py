@@ -283,6 +283,10 @@ def node_options(given: dict[str, Any], config: Path | None) -> NodeOptions:
     max_mb = pick("record_max_mb")
     keep = None
     if record is None and record_settings is not None:
+        try:  # the folder of all flights is the config's: made if missing
+            record_settings.dir.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise fail(f"{config}: record.dir {record_settings.dir}: {e.strerror or e}") from None
         record = new_flight_path(record_settings.dir)
         max_mb = max_mb if max_mb is not None else record_settings.max_mb
         if record_settings.keep_mb is not None:
