@@ -232,7 +232,8 @@ def test_sighup_refuses_a_bad_script_and_restarts_on_a_good_one(
         (tmp_path / "s.bzz").write_text(LOOPING.replace("version A", "version B"))
         proc.send_signal(signal.SIGHUP)
         restart = read_until(proc, "robot 1: version B")  # the new process's init()
-        notify.wait_for("READY=1", "STATUS=tick 0")  # the restarted node is up, same socket
+        # The restarted node is up, on the same socket.
+        restarted = notify.wait_for("READY=1", "STATUS=tick 0")
         proc.send_signal(signal.SIGTERM)
         out, err = finish(proc)
     assert any("reload: checking the config and script" in line for line in refused)
@@ -241,6 +242,10 @@ def test_sighup_refuses_a_bad_script_and_restarts_on_a_good_one(
     assert "stop: hold acknowledged by the autopilot" in text  # the old node stopped safely
     assert proc.returncode == 0, err
     assert "stopped by a signal" in out
+    # The watchdog was widened for the restart's waits, and set back at its READY.
+    widened = [int(f[14:]) for m in restarted[:-1] for f in m if f.startswith("WATCHDOG_USEC=")]
+    assert widened and widened[-1] > 150_000_000  # 30 s heartbeat + 120 s fix + margin
+    assert "WATCHDOG_USEC=2000000" in restarted[-1]
 
 
 # --------------------------------------------------------------------- the parts, no process

@@ -639,6 +639,11 @@ def _run(
     if out is not None:
         write_json(out / "summary.json", summary)
     if service.reloading and service.signals.block_for_restart():
+        if notifier.watchdog_s is not None:
+            # No tick pings while the new process waits for the heartbeat and the fix:
+            # the watchdog is widened to that wait, and set back at its READY.
+            wait_s = connect_timeout + prof.autopilot.gps_fix_timeout_s + RESTART_MARGIN_S
+            notifier.send(f"WATCHDOG_USEC={round(wait_s * 1e6)}")
         notifier.close()
         _restart_in_place(say)
     if failed is not None:
@@ -647,6 +652,10 @@ def _run(
             f"in its failsafe (on_script_error = {prof.failsafe.on_script_error})"
         )
 
+
+#: Seconds a restart in place may take beyond its waits for the heartbeat and the fix (the
+#: stream requests' settling, the script's preparation), for the widened watchdog.
+RESTART_MARGIN_S = 30.0
 
 #: Seconds the start-up gives the stream requests to be answered before the loop begins.
 STREAMS_SETTLE_S = 5.0

@@ -136,7 +136,11 @@ class NodeService:
         """READY=1, then the loop until a stop signal, the end of `seconds` or a reload
         whose check passed (`reloading`)."""
         node = self.node
-        self.notifier.send("READY=1", f"STATUS={node.status_line()}")
+        fields = ["READY=1", f"STATUS={node.status_line()}"]
+        if self.notifier.watchdog_s is not None:
+            # The unit's interval again, after a restart in place that had widened it.
+            fields.append(f"WATCHDOG_USEC={round(self.notifier.watchdog_s * 1e6)}")
+        self.notifier.send(*fields)
         node.run(seconds, after_tick=self._after_tick)
 
     def _after_tick(self, now: float) -> None:
