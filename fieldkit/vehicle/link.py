@@ -201,7 +201,7 @@ class Autopilot(AutopilotCore):
         down = self.reopen.back(now)
         self._event("reopened", f"{self.url} back after {round(down, 1):g} s")
         self.connection_made()
-        return conn
+        return self._conn  # None again if its first writes failed: a device still flapping
 
     # ------------------------------------------------------------------ the loop
 
