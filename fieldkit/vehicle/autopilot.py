@@ -18,7 +18,8 @@ be told apart; the rest wait in a FIFO queue. Safety commands (`land`, `rtl`, `h
 the front of the queue. Setpoints (`goto`) have no ACK in MAVLink and are sent at once.
 
 Time comes from the injected `clock` (default `time.monotonic`), so tests drive deadlines,
-retries and heartbeat ages without sleeping.
+retries and heartbeat ages without sleeping. A transport that reopens a lost line calls
+`connection_made()`: the parser forgets any half frame and the streams are asked again.
 """
 
 from __future__ import annotations
