@@ -394,7 +394,7 @@ def _record(rig: MemoryRig | SimRig) -> dict[str, bytearray]:
         rig.sim.data_to_send = sim_data  # type: ignore[method-assign]
         rig.link.data_to_send = link_data  # type: ignore[method-assign]
     else:
-        port_write, conn_write = rig.sim.port.write, rig.link._conn.write
+        port_write = rig.sim.port.write
 
         def to_link(data: bytes) -> int:
             rec["sim"] += data
@@ -402,10 +402,9 @@ def _record(rig: MemoryRig | SimRig) -> dict[str, bytearray]:
 
         def to_sim(data: bytes) -> None:
             rec["link"] += data
-            conn_write(data)
 
         rig.sim.port.write = to_link  # type: ignore[method-assign]
-        rig.link._conn.write = to_sim
+        rig.link.on_tx = to_sim  # every byte the link wrote to the port
     return rec
 
 

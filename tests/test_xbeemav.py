@@ -13,13 +13,16 @@ radios share a fake clock that moves only when the wire is quiet, so protocol ti
 
 from __future__ import annotations
 
+import logging
 import os
 import random
+import re
 import select
 import struct
 import time
 import tty
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 from digi.xbee.models.address import XBee16BitAddress, XBee64BitAddress
@@ -407,6 +410,12 @@ class Module:
         self.out = bytearray()  # bytes for the radio not yet written
         self.written = 0  # bytes written to the radio
         self.radio: XBeeRadio | None = None
+        self._in0 = self._out0 = 0  # the radio's byte counters when this module got it
+
+    def serve(self, radio: XBeeRadio) -> None:
+        """Be `radio`'s module from now on (it counted bytes with another module before)."""
+        self.radio = radio
+        self._in0, self._out0 = radio.stats["bytes_in"], radio.stats["bytes_out"]
 
     def in_flight(self) -> bool:
         """Whether bytes are on their way between this module and its radio."""
@@ -415,8 +424,8 @@ class Module:
         stats = self.radio.stats
         return (
             bool(self.out)
-            or self.written != stats["bytes_in"]
-            or len(self.raw) != stats["bytes_out"]
+            or self.written != stats["bytes_in"] - self._in0
+            or len(self.raw) != stats["bytes_out"] - self._out0
         )
 
     def close(self) -> None:
@@ -598,6 +607,72 @@ def test_io_errors_are_counted_not_raised(mesh: Callable[[int], Mesh]) -> None:
         r1.send(B.encode(bundle(1, 1)))
         clock.now += 0.5
     r1.close()
+
+
+def test_a_module_unplugged_and_back_is_reopened_through_its_symlink(
+    mesh: Callable[[int], Mesh], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """/dev/xbee (a symlink) loses its module mid-run and gets it back as another tty: the
+    radio never raises, drops and counts what it would send meanwhile, tries the path once
+    a second, logs the loss and the return once each, and then talks again."""
+    caplog.set_level(logging.INFO, logger="fieldkit.radio")
+    net = mesh(1)
+    clock = FakeClock()
+    path = str(tmp_path / "xbee")
+    (r1,) = radios_on(net, [1], clock)
+    old = net.add(SERIALS[2])
+    os.symlink(old.path, path)
+    r2 = XBeeRadio(path, 2, api_mode=1, id_map=ID_MAP, clock=clock)
+    old.radio = r2
+    try:
+        r2.send(B.encode(bundle(2, 1)))
+        got = run(net, [r1, r2], clock, lambda g: bool(g[1]))
+        assert got[1] == [(2, B.encode(bundle(2, 1)))]
+
+        # The cable goes: the module's pty closes, the node file with it.
+        stale = os.open(old.path, os.O_RDWR | os.O_NOCTTY)  # the old tty stays taken
+        net.modules.remove(old)
+        old.close()
+        os.unlink(path)
+        for k in range(50):  # five seconds, a bundle a tick
+            assert r2.poll() == []
+            r2.send(B.encode(bundle(2, 10 + k)))
+            clock.now += 0.1
+        assert r2.down and r2.fileno() is None
+        assert r2.stats["frames_dropped_down"] >= 45  # paced out of the queue, then dropped
+        assert r2.stats["reopen_failures"] == 4  # once a second, not once a poll
+        lines = [(r.levelname, r.getMessage()) for r in caplog.records]
+        assert len(lines) == 1 and lines[0][0] == "WARNING"
+        assert re.fullmatch(rf"radio: {re.escape(path)} lost \(read failed: .+\); reopening",
+                            lines[0][1])  # fmt: skip
+
+        # Back, as another tty behind the same symlink.
+        new = net.add(SERIALS[2])
+        os.close(stale)
+        assert new.path != old.path
+        os.symlink(new.path, path + ".new")
+        os.replace(path + ".new", path)
+        for _ in range(20):
+            if not r2.down:
+                break
+            r2.poll()
+            clock.now += 0.1
+        assert not r2.down and r2.stats["reopens"] == 1
+        new.serve(r2)
+        assert len(caplog.records) == 2
+        assert re.fullmatch(rf"radio: {re.escape(path)} back after [\d.]+ s \(\d+ frames dropped "
+                            r"meanwhile\)", caplog.records[1].getMessage())  # fmt: skip
+        r1.send(B.encode(bundle(1, 2)))
+        r2.send(B.encode(bundle(2, 99)))
+        got = run(net, [r1, r2], clock, lambda g: bool(g[1] and g[2]))
+        assert got[2] == [(1, B.encode(bundle(1, 2)))]
+        # What was sent during the outage is gone, none of it late; the new bundle goes.
+        assert got[1] == [(2, B.encode(bundle(2, 99)))]
+        assert r2.stats["frames_dropped_down"] == 50
+        assert r2.stats["bad_frames"] == 0
+    finally:
+        r1.close()
+        r2.close()
 
 
 # ---------------------------------------------------------------- URLs and profiles

@@ -23,11 +23,17 @@ class MavlinkAutopilot:
         self.home = home  # where the node's frame starts: used until the first position
 
     def poll(self) -> None:
-        """Read the line, move pending commands on, send our heartbeat."""
+        """Read the line, move pending commands on, send our heartbeat; log the link's events.
+
+        A line error or a lost device ("link") is a warning: `autopilot: /dev/autopilot lost
+        (read failed: Input/output error); reopening`; its return (`... back after 4 s`) and
+        everything else the link reports is information.
+        """
         self.link.poll()
         for event in self.link.drain_events():
             text = event.text
-            _log.info("%s", text if text.startswith("autopilot") else f"autopilot: {text}")
+            level = logging.WARNING if event.kind == "link" else logging.INFO
+            _log.log(level, "%s", text if text.startswith("autopilot") else f"autopilot: {text}")
 
     def telemetry(self) -> Telemetry:
         """The latest state; the last known position (or home) while none is reported."""

@@ -5,10 +5,20 @@ is `fieldkit.radio.xbee_core.XBeeCore`'s. This module only moves bytes: it opens
 (non-blocking), reads what the operating system holds, writes the core's frames when the port
 has room, and reopens a port it opened after an I/O error. It reads the clock once per call
 and feeds that time to the core.
+
+A device that goes away (the XBee's USB cable worked loose: EIO, the node file gone) never
+raises into the node's loop. The port is closed, `radio: /dev/xbee lost (...); reopening` is
+logged once, the frames the core releases while it is gone are dropped and counted
+(`frames_dropped_down`: the radio is lossy anyway, and XbeeMav's own acks and pings repair
+what matters), and the same path is tried once every `reopen_interval_s` of the radio's
+clock. When it opens again (the udev symlink pointing at the module's new ttyUSBn), the
+core forgets any half frame and `radio: /dev/xbee back after N s` is logged once.
 """
 
 from __future__ import annotations
 
+import logging
+import os
 import select
 import time
 from collections import Counter
@@ -25,6 +35,8 @@ from .xbeemav import DEFAULT_BAUD, XbeeMav
 
 _OUR_PARAMS = ("baud", "api", "unknown")
 
+_log = logging.getLogger("fieldkit.radio")
+
 
 class XBeeRadio:
     """A `RadioLink` over an XBee in API mode on a serial port, speaking XbeeMav's packets.
@@ -38,8 +50,10 @@ class XBeeRadio:
     (`interframe_s`, `round_wait_s`, ...) go to `XbeeMav`.
 
     `stats` counts, besides the `XBeeCore`, `FrameReader` and `XbeeMav` counters: bytes_out,
-    frames_out, io_errors, reopens, tx_overflow (frames dropped because the port would not
-    drain).
+    frames_out, io_errors (reads and writes that failed), reopens, reopen_failures (attempts
+    while the device was gone), frames_dropped_down (frames released while it was gone),
+    tx_overflow (frames dropped because the port would not drain). A device path that fails
+    is tried again every `reopen_interval_s` seconds of `clock`.
     """
 
     def __init__(
@@ -56,6 +70,7 @@ class XBeeRadio:
         dest16: int = XBEEMAV_DEST16,
         idle_flush_s: float = 0.1,
         max_tx_buffer: int = 1 << 16,
+        reopen_interval_s: float = 1.0,
         **engine_options: Any,
     ) -> None:
         self.core = XBeeCore(
@@ -75,7 +90,10 @@ class XBeeRadio:
         self._path = port if isinstance(port, str) else None
         self._baud = baud
         self._port: serial.SerialBase | None = None
+        self.reopen_interval_s = reopen_interval_s
         self._reopen_at = 0.0
+        self._down_since: float | None = None  # when the device was lost, while it is gone
+        self._dropped_before = 0  # frames_dropped_down when it was lost
         self._tx = bytearray()
         self._closed = False
         if isinstance(port, str):
@@ -203,8 +221,16 @@ class XBeeRadio:
 
     # ------------------------------------------------------------------ the port
 
+    @property
+    def down(self) -> bool:
+        """Whether the device this radio opened is lost and not reopened yet."""
+        return self._down_since is not None
+
     def _pump(self, now: float) -> None:
         for frame in self.core.frames_to_send(now):
+            if self._down_since is not None:
+                self.stats["frames_dropped_down"] += 1
+                continue
             if len(self._tx) + len(frame) > self.max_tx_buffer:
                 self.stats["tx_overflow"] += 1
                 continue
@@ -213,17 +239,34 @@ class XBeeRadio:
         self._write()
 
     def _port_ready(self, now: float) -> serial.SerialBase | None:
-        if self._port is None and self._path is not None and now >= self._reopen_at:
-            self._reopen_at = now + 1.0
+        if (
+            self._port is None
+            and self._path is not None
+            and not self._closed
+            and now >= self._reopen_at
+        ):
+            self._reopen_at = now + self.reopen_interval_s
             try:
                 self._port = self._open(self._path, self._baud)
-                self.core.reset()
-                self.stats["reopens"] += 1
             except (OSError, serial.SerialException):
-                self.stats["io_errors"] += 1
+                self.stats["reopen_failures"] += 1  # still gone: one open() a second
+                return None
+            self.core.reset()  # the rest of a half frame from before never comes
+            self.stats["reopens"] += 1
+            if self._down_since is not None:
+                down = max(0.0, now - self._down_since)
+                self._down_since = None
+                # A warning like the loss it ends: the node shows fieldkit's library loggers
+                # from warnings up, and the pair brackets the outage in the log.
+                _log.warning(
+                    "radio: %s back after %g s (%d frames dropped meanwhile)",
+                    self._path,
+                    round(down, 1),
+                    self.stats["frames_dropped_down"] - self._dropped_before,
+                )
         return self._port
 
-    def _io_failed(self, now: float) -> None:
+    def _io_failed(self, now: float, what: str, e: BaseException) -> None:
         self.stats["io_errors"] += 1
         if self._path is None:
             return  # not ours to reopen: keep counting
@@ -233,7 +276,13 @@ class XBeeRadio:
         except (OSError, serial.SerialException):
             pass
         self._port = None
-        self._reopen_at = now + 1.0
+        self._tx.clear()  # a frame cut short: the module would take its rest as garbage
+        # The first attempt a whole interval later: a device on its way out can still open.
+        self._reopen_at = now + self.reopen_interval_s
+        if self._down_since is None:
+            self._down_since = now
+            self._dropped_before = self.stats["frames_dropped_down"]
+            _log.warning("radio: %s lost (%s); reopening", self._path, _reason(what, e))
 
     def _read(self, now: float) -> bytes:
         port = self._port_ready(now)
@@ -248,8 +297,8 @@ class XBeeRadio:
                 chunks.append(chunk)
                 if len(chunk) < 4096:
                     break
-        except (OSError, serial.SerialException):
-            self._io_failed(now)
+        except (OSError, serial.SerialException) as e:
+            self._io_failed(now, "read failed", e)
         return b"".join(chunks)
 
     def _write(self) -> None:
@@ -270,5 +319,19 @@ class XBeeRadio:
                     break
                 del self._tx[:n]
                 self.stats["bytes_out"] += n
-        except (OSError, serial.SerialException):
-            self._io_failed(self.clock())
+        except (OSError, serial.SerialException) as e:
+            self._io_failed(self.clock(), "write failed", e)
+
+
+def _reason(what: str, e: BaseException) -> str:
+    """Why the port failed, short: "read failed: Input/output error".
+
+    pyserial wraps the OS error in text of its own, and reports a tty at end of file (the
+    USB device went away) as "device reports readiness to read but returned no data ...".
+    """
+    for err in (e, e.__cause__ or e.__context__):
+        if isinstance(err, OSError) and isinstance(err.errno, int) and err.errno > 0:
+            return f"{what}: {os.strerror(err.errno)}"
+    if "returned no data" in str(e):
+        return f"{what}: end of file, device disconnected"
+    return f"{what}: {e}"

@@ -3,6 +3,7 @@
 - `autopilot.AutopilotCore`: the MAVLink conversation with ArduPilot/PX4, without I/O;
   commands checked against their COMMAND_ACK and retried;
 - `link.Autopilot`: that core on any pymavlink URL, non-blocking, polled from the node's loop;
+  a serial device that vanishes is closed and reopened at `reopen.ReopenPolicy`'s pace;
 - `mavlink`: the codec and `FrameReader`, the resynchronising MAVLink parser;
 - `pty`: `open_pty` and `PtyPair`, the line between a simulated machine and its driver;
 - `sim.ardupilot.SimArduPilot` / `sim.vehicle.SimVehicle`: a vehicle that answers like

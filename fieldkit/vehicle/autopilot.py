@@ -18,7 +18,8 @@ be told apart; the rest wait in a FIFO queue. Safety commands (`land`, `rtl`, `h
 the front of the queue. Setpoints (`goto`) have no ACK in MAVLink and are sent at once.
 
 Time comes from the injected `clock` (default `time.monotonic`), so tests drive deadlines,
-retries and heartbeat ages without sleeping.
+retries and heartbeat ages without sleeping. A transport that reopens a lost line calls
+`connection_made()`: the parser forgets any half frame and the streams are asked again.
 """
 
 from __future__ import annotations
@@ -194,7 +195,9 @@ class Event:
     """Something the node should know (and log): see `AutopilotCore.drain_events`."""
 
     time: float  # link clock
-    kind: str  # "command", "heartbeat", "mode", "armed", "override", "statustext", "link"
+    # "command", "heartbeat", "mode", "armed", "override", "statustext", "link" (a line
+    # error, the device lost), "reopened" (the device back)
+    kind: str
     text: str
     command: MavCommand | None = None
 
@@ -332,6 +335,7 @@ class AutopilotCore:
         self._last_hb_sent: float | None = None
         self._statustexts: deque[tuple[float, str]] = deque(maxlen=8)
         self._link_failing = False
+        self.stream_rate_hz: float | None = None  # the last `request_streams` rate
         self._rc_seen_full = False  # RC_CHANNELS seen: ignore the older RC_CHANNELS_RAW
         self._t0 = clock()
 
@@ -354,6 +358,20 @@ class AutopilotCore:
                 continue
             handled += 1
         return handled
+
+    def connection_made(self) -> None:
+        """The line was reopened after a loss: start afresh on it.
+
+        No half frame from before (its rest never comes), no line-error streak, and the
+        streams asked again at the last `request_streams` rate: the autopilot may have
+        rebooted (a brown-out on the same cable), and one that did streams nothing until
+        asked. The command machine and the telemetry carry on: the heartbeat's age tells
+        the supervisor how long the link was gone.
+        """
+        self._reader.reset()
+        self._link_failing = False
+        if self.stream_rate_hz is not None:
+            self.request_streams(self.stream_rate_hz)
 
     def tick(self) -> None:
         """Move time on: our heartbeat when due, heartbeat-loss events, command deadlines."""
@@ -972,6 +990,7 @@ class AutopilotCore:
         one of these is only a warning on the command)."""
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             return self._refused("request_streams", f"rate must be > 0 Hz, got {rate_hz}", on_done)
+        self.stream_rate_hz = rate_hz
 
         def legacy(confirmation: int) -> None:
             self._mav.request_data_stream_send(

@@ -16,6 +16,17 @@ Any pymavlink connection string works: a serial device (`/dev/ttyUSB0` with `bau
 `tcp:HOST:PORT` (ArduPilot SITL's 5760), `udpin:0.0.0.0:14550`. Nothing here blocks the loop:
 `poll()` reads what the line holds (it waits at most its `timeout`, 0 by default).
 
+A serial device that goes away (a USB cable worked loose: reads fail with EIO, the node file
+vanishes) never raises into the loop: the port is closed, a "link" event says
+`/dev/autopilot lost (read failed: Input/output error); reopening` once, frames written while
+down are dropped (`bytes_dropped`), and each `poll()` tries the same path again when
+`ReopenPolicy` says so (once a second of the link's clock; one open() each). Meanwhile no
+heartbeat comes, so the supervisor's heartbeat-loss failsafe fires as for any silent
+autopilot. When the path opens again (the udev symlink pointing at the device's new
+ttyUSBn), a "reopened" event says `/dev/autopilot back after N s` and the core starts afresh
+on it (`AutopilotCore.connection_made`: no half frame, streams asked again). Network
+transports keep their own ways: an error there is counted as a line error.
+
 Everything the protocol decides (telemetry, the command machine, heartbeats) is the core's,
 `fieldkit.vehicle.autopilot.AutopilotCore`. `Autopilot` extends it with the port only, so
 the node keeps one object with the core's whole command API: it opens the connection, reads
@@ -25,7 +36,9 @@ between polls leaves at once), and adds the bounded blocking waits used at start
 
 from __future__ import annotations
 
+import os
 import select
+import time
 from collections.abc import Callable
 from typing import Any, Unpack
 
@@ -41,6 +54,7 @@ from fieldkit.vehicle.autopilot import (
     describe_error,
 )
 from fieldkit.vehicle.mavlink import adopt_codec
+from fieldkit.vehicle.reopen import DEFAULT_INTERVAL_S, ReopenPolicy
 
 # A single poll reads at most this much, so that a flooded line cannot starve the loop.
 _MAX_READ_PER_POLL = 1 << 16
@@ -50,7 +64,14 @@ _READ_CHUNK = 4096
 class Autopilot(AutopilotCore):
     """The node's MAVLink link to one autopilot: the protocol core on a pymavlink connection."""
 
-    def __init__(self, url: str, *, baud: int = 57600, **options: Unpack[CoreOptions]) -> None:
+    def __init__(
+        self,
+        url: str,
+        *,
+        baud: int = 57600,
+        reopen_interval_s: float = DEFAULT_INTERVAL_S,
+        **options: Unpack[CoreOptions],
+    ) -> None:
         """Open `url` (any pymavlink connection string); raises AutopilotError if it fails.
 
         The other options are `AutopilotCore`'s: `profile` gives the mode names, the
@@ -58,24 +79,37 @@ class Autopilot(AutopilotCore):
         `heartbeat_interval_s` is how often `poll()` sends our own heartbeat (None: only
         `send_heartbeat()`); RC channel `override_channel` at or above `override_pwm`
         microseconds reads as the pilot taking over; `target_system` pins the autopilot's
-        system id (by default the first autopilot heartbeat decides).
+        system id (by default the first autopilot heartbeat decides). A serial device lost
+        later is tried again every `reopen_interval_s` seconds of the link's clock.
         """
         super().__init__(url=url, **options)
+        self.baud = baud
         try:
-            self._conn = mavutil.mavlink_connection(
-                url,
-                baud=baud,
-                source_system=self.source_system,
-                source_component=self.source_component,
-            )
+            conn = self._connect()
         except Exception as e:  # serial, socket and value errors alike
             raise AutopilotError(
                 f"cannot open the autopilot link {url}: {describe_error(e)}"
             ) from e
-        adopt_codec(self._conn, self._mav)
+        self._conn: Any | None = conn
+        # Only a serial device comes back by being opened again; sockets have their own ways.
+        self.serial = isinstance(conn, mavutil.mavserial)
+        self.reopen = ReopenPolicy(reopen_interval_s)
+        self.bytes_dropped = 0  # written while the device was gone
+        self._closed = False
         #: Taps on the bytes as they cross the port (a recorder): read, and written.
         self.on_rx: Callable[[bytes], None] | None = None
         self.on_tx: Callable[[bytes], None] | None = None
+
+    def _connect(self) -> Any:
+        """A pymavlink connection to `url` that encodes and decodes with our codec."""
+        conn = mavutil.mavlink_connection(
+            self.url,
+            baud=self.baud,
+            source_system=self.source_system,
+            source_component=self.source_component,
+        )
+        adopt_codec(conn, self._mav)
+        return conn
 
     @classmethod
     def from_profile(cls, profile: Profile, url: str | None = None, **kwargs: Any) -> Autopilot:
@@ -94,12 +128,12 @@ class Autopilot(AutopilotCore):
     # ------------------------------------------------------------------ lifecycle
 
     def close(self) -> None:
-        """Close the port; pending commands are cancelled."""
+        """Close the port; pending commands are cancelled, and a lost device stays closed."""
+        self._closed = True
         self.cancel_all("link closed")
-        try:
-            self._conn.close()
-        except Exception:  # closing a dead port must not fail
-            pass
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            _close_quietly(conn)
 
     def __enter__(self) -> Autopilot:
         """Use as a context manager: closed on exit."""
@@ -109,21 +143,65 @@ class Autopilot(AutopilotCore):
         """Close the link."""
         self.close()
 
+    @property
+    def link_down(self) -> bool:
+        """Whether the serial device is lost and not reopened yet."""
+        return self.reopen.down
+
     def fileno(self) -> int | None:
-        """The descriptor to select() on (None for transports without one)."""
+        """The descriptor to select() on (None for transports without one, or while down)."""
         fd = getattr(self._conn, "fd", None)
         return fd if isinstance(fd, int) and fd >= 0 else None
 
     def write(self, buf: bytes | bytearray) -> None:
         """Send the codec's frame on the link now; errors are counted, not raised."""
+        conn = self._conn
+        if conn is None:
+            # Nothing to write to: by the time the device is back, the frame is stale (our
+            # heartbeat, a retry the command machine will make again anyway).
+            self.bytes_dropped += len(buf)
+            return
         try:
-            self._conn.write(bytes(buf))
+            if self.serial:
+                # pymavlink's serial write swallows the error (and prints to stdout): write
+                # to its pyserial port so that a vanished device is seen here.
+                conn.port.write(bytes(buf))
+            else:
+                conn.write(bytes(buf))
         except Exception as e:  # a dead port costs a counter, not the loop
-            self._link_error(f"write failed: {describe_error(e)}")
+            if self.serial:
+                self._lost(_port_reason("write failed", e))
+            else:
+                self._link_error(f"write failed: {describe_error(e)}")
             return
         self.bytes_sent += len(buf)
         if self.on_tx is not None:
             self.on_tx(bytes(buf))
+
+    def _lost(self, reason: str) -> None:
+        """The serial device failed: close it, say so once, try it again at the policy's pace."""
+        self.link_errors += 1
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            _close_quietly(conn)
+        if self.reopen.lost(self._clock(), reason):
+            self._event("link", f"{self.url} lost ({reason}); reopening")
+
+    def _reopen(self) -> Any | None:
+        """Try the lost device's path again if an attempt is due; the connection, or None."""
+        now = self._clock()
+        if self._closed or not self.reopen.due(now):
+            return None
+        try:
+            conn = self._connect()
+        except Exception:  # still gone (ENOENT), not ready, not permitted: the next second
+            self.reopen.failed(now)
+            return None
+        self._conn = conn
+        down = self.reopen.back(now)
+        self._event("reopened", f"{self.url} back after {round(down, 1):g} s")
+        self.connection_made()
+        return self._conn  # None again if its first writes failed: a device still flapping
 
     # ------------------------------------------------------------------ the loop
 
@@ -139,12 +217,21 @@ class Autopilot(AutopilotCore):
 
     def _read(self, timeout: float) -> int:
         conn = self._conn
+        if conn is None:
+            conn = self._reopen()
+            if conn is None:
+                if timeout > 0 and not self._closed:
+                    time.sleep(timeout)  # nothing to select() on: wait as select() would
+                return 0
         fd = self.fileno()
         if timeout > 0 and fd is not None:
             try:
                 select.select([fd], [], [], timeout)
             except (OSError, ValueError) as e:
-                self._link_error(f"select failed: {describe_error(e)}")
+                if self.serial:
+                    self._lost(_port_reason("select failed", e))
+                else:
+                    self._link_error(f"select failed: {describe_error(e)}")
                 return 0
         handled = 0
         total = 0
@@ -152,7 +239,10 @@ class Autopilot(AutopilotCore):
             try:
                 data = conn.recv(_READ_CHUNK)
             except Exception as e:  # pyserial and socket errors alike: the link failed
-                self._link_error(f"read failed: {describe_error(e)}")
+                if self.serial:
+                    self._lost(_port_reason("read failed", e))
+                else:
+                    self._link_error(f"read failed: {describe_error(e)}")
                 break
             if not data:
                 break
@@ -258,3 +348,28 @@ class Autopilot(AutopilotCore):
                 return False
             if idle is not None:
                 idle()
+
+
+def _close_quietly(conn: Any) -> None:
+    """Close a pymavlink connection; a dead port's close must not fail."""
+    try:
+        conn.close()
+    except Exception:  # noqa: BLE001  # the device is gone already: nothing to report
+        pass
+
+
+def _port_reason(what: str, e: BaseException) -> str:
+    """Why a serial port failed, short: "read failed: Input/output error".
+
+    pyserial wraps the OS error in text of its own ("read failed: [Errno 5] ..."), and
+    reports a tty at end of file (the USB device went away) as "device reports readiness
+    to read but returned no data (device disconnected or multiple access on port?)".
+    """
+    cause = e.__cause__ or e.__context__
+    if isinstance(e, OSError) and isinstance(e.errno, int) and e.errno > 0:
+        return f"{what}: {os.strerror(e.errno)}"
+    if isinstance(cause, OSError) and isinstance(cause.errno, int) and cause.errno > 0:
+        return f"{what}: {os.strerror(cause.errno)}"
+    if "returned no data" in str(e):
+        return f"{what}: end of file, device disconnected"
+    return f"{what}: {describe_error(e)}"

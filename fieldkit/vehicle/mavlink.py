@@ -83,6 +83,15 @@ class FrameReader:
                 self.messages += 1
                 out.append(m)
 
+    def reset(self) -> None:
+        """Forget a partial frame: the line was reopened and its rest will never come (the
+        next bytes are another frame's, which the stale half would swallow). Counters stay."""
+        mav = self.mav
+        mav.buf = bytearray()
+        mav.buf_index = 0
+        mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
+        mav.have_prefix_error = False
+
     def _rescan(self, frame: bytes | bytearray) -> None:
         """Put a rejected frame's bytes, but its first, back in front of the parser."""
         mav = self.mav

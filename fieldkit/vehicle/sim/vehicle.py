@@ -120,17 +120,27 @@ class SimVehicle(SimArduPilot):
         `SimArduPilot`'s.
         """
         super().__init__(profile, **options)
+        self.port: _FdPort | _UrlPort = self._open(device, baud)
+        self.device = device if isinstance(device, str) else f"fd {device}"
+
+    def _open(self, device: str | int, baud: int) -> _FdPort | _UrlPort:
         if isinstance(device, int):
-            self.port: _FdPort | _UrlPort = _FdPort(device)
-            self.device = f"fd {device}"
-        else:
-            try:
-                url_port = _UrlPort(device, baud, self.sysid, self.compid)
-            except Exception as e:  # serial, socket and value errors alike
-                raise VehicleSimError(f"cannot open port {device}: {describe_error(e)}") from e
-            adopt_codec(url_port.conn, self._mav)
-            self.port = url_port
-            self.device = device
+            return _FdPort(device)
+        try:
+            url_port = _UrlPort(device, baud, self.sysid, self.compid)
+        except Exception as e:  # serial, socket and value errors alike
+            raise VehicleSimError(f"cannot open port {device}: {describe_error(e)}") from e
+        adopt_codec(url_port.conn, self._mav)
+        return url_port
+
+    def attach(self, device: str | int, *, baud: int = 57600) -> None:
+        """Move to another line, as `device` in the constructor: the same machine (flying,
+        armed, in its mode) on a new cable. The old port is closed as `close()` closes it."""
+        port = self._open(device, baud)
+        self.port.close()
+        self.port = port
+        self._reader.reset()  # the rest of a frame cut by the pull never comes
+        self.device = device if isinstance(device, str) else f"fd {device}"
 
     def step(self, dt: float) -> None:
         """Service the link (no waiting), advance the physics by `dt`, send what is due."""
