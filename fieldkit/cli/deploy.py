@@ -124,7 +124,7 @@ def deploy_cmd(
     if not uninstall and profile is None:
         raise usage_error("Missing option '--profile'")
     live = root is None
-    if live:
+    if live and not dry_run:  # a dry run changes nothing: anyone may look
         _check_live(systemd_missing())
     target = Path("/") if root is None else root
     if root is not None and root.exists() and not root.is_dir():

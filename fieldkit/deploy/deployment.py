@@ -57,11 +57,8 @@ def uninstall(installer: Installer, systemctl: Systemctl | None, purge: bool) ->
     `purge`, state and recordings still go)."""
     manifest = installer.manifest()
     if manifest is None:
-        if not purge:
-            return None
-        changes = Changes()
-        installer.purge(changes)
-        return changes
+        changes = installer.uninstall(None, purge)  # what a kill at the very end leaves
+        return changes if changes.changed else None
     with installer.locked():
         manifest = installer.manifest() or manifest
         units = _units(manifest)

@@ -308,7 +308,7 @@ class Installer:
         files = [e for e in entries if isinstance(e, File)]
         links = [e for e in entries if isinstance(e, Symlink)]
         dirs = sorted((e for e in entries if isinstance(e, Dir)), key=lambda d: len(d.path.parts))
-        missing = {str(p) for p in made} | self._missing_dirs(entries)
+        missing = ({str(p) for p in made} | self._missing_dirs(entries)) - set(_LOCK_PARENTS)
         # Before any change: a manifest that covers the old install, the new one and every
         # directory this one makes, each file with the hashes it may have meanwhile.
         intent = Manifest(
@@ -538,15 +538,20 @@ class Installer:
                 if not quiet:
                     changes.kept.append(f"{where}: not empty (files deploy did not install)")
                 return
+            if quiet:  # a parent made for a staging root: never worth failing over
+                return
             raise
         self._step()
         changes.removed.append(where)
 
-    def uninstall(self, manifest: Manifest, purge: bool) -> Changes:
+    def uninstall(self, manifest: Manifest | None, purge: bool) -> Changes:
         """Remove what `manifest` names (under the lock): every file still as deploy wrote
         it, its symlinks, and its directories once empty, except /var/lib/fieldkit and
-        /var/log/fieldkit (state, recordings) unless `purge`, which removes them whole."""
+        /var/log/fieldkit (state, recordings) unless `purge`, which removes them whole.
+        Without a manifest (a finished uninstall, or one killed at its very end), only what
+        such a kill can leave: the lock and /etc/fieldkit, if that is all it holds."""
         changes = Changes()
+        manifest = manifest or Manifest()
         for p, (_, hashes) in sorted(manifest.files.items(), reverse=True):
             if p != str(layout.LOCK):
                 self._remove_file(p, hashes, changes)
@@ -554,17 +559,11 @@ class Installer:
             self._remove_link(p, target, changes)
         if purge:
             self.purge(changes)
-        # The manifest goes last but for the directories, so that a kill before it leaves
-        # a manifest for the next uninstall; the lock file just before it.
-        if str(layout.LOCK) in manifest.files:
-            self._remove_file(str(layout.LOCK), manifest.files[str(layout.LOCK)][1], changes)
-        where = self.path(layout.MANIFEST)
-        if where.is_file():
-            where.unlink()
-            self._step()
-            changes.removed.append(where)
         kept_dirs = [] if purge else [str(d) for d in layout.KEPT_DIRS]
+        last = [str(layout.ETC_DIR), *_LOCK_PARENTS]
         for p in sorted(manifest.dirs, key=_depth, reverse=True):
+            if p in last:
+                continue  # it holds the manifest: after it
             if any(PurePosixPath(k).is_relative_to(p) for k in kept_dirs) and p not in kept_dirs:
                 continue  # a parent of a kept directory: it stays with it
             if p in kept_dirs:
@@ -572,6 +571,23 @@ class Installer:
                     changes.left.append(self.path(p))
                 continue
             self._remove_dir(p, changes, quiet=not _is_own(p))
+        # Last the lock, the manifest (so that a kill before leaves it for the next
+        # uninstall), and the directory that held them with the parents made for it.
+        lock = self.path(layout.LOCK)
+        if lock.is_file() and lock.stat().st_size == 0:
+            lock.unlink()
+            self._step()
+            changes.removed.append(lock)
+        where = self.path(layout.MANIFEST)
+        if where.is_file():
+            where.unlink()
+            self._step()
+            changes.removed.append(where)
+        self._remove_dir(str(layout.ETC_DIR), changes)
+        for p in _LOCK_PARENTS:
+            # Not listed in the manifest (the lock may have made them before there was
+            # one): removed when empty, which the robot's own /etc never is.
+            self._remove_dir(p, changes, quiet=True)
         return changes
 
     def purge(self, changes: Changes) -> None:
@@ -582,6 +598,10 @@ class Installer:
                 shutil.rmtree(where)
                 self._step()
                 changes.removed.append(where)
+
+
+#: The parents of /etc/fieldkit (made, if missing, before the lock is held; never listed).
+_LOCK_PARENTS = [str(p) for p in list(layout.ETC_DIR.parents)[:-1]]
 
 
 def _is_own(target: str) -> bool:
