@@ -78,6 +78,8 @@ def render_toml(header: str, tables: Sequence[tuple[str, Sequence[Key]]]) -> str
     for name, keys in tables:
         lines.append(f"[{name}]")
         for key in keys:
+            if any(ord(c) < 0x20 and c != "\t" or ord(c) == 0x7F for c in key.comment):
+                raise ValueError(f"{key.name}: a comment holds a control character")
             line = f"{key.name} = {toml_value(key.value)}"
             lines.append(f"{line}  # {key.comment}" if key.comment else line)
     return "\n".join(lines) + "\n"

@@ -106,6 +106,9 @@ def make_plan(options: Options, machine: Machine) -> Plan:
         _check_device(link, machine, warnings)
     protect_home = _check_interpreter(options.python, machine, warnings)
     script = prepare(options.script) if options.script is not None else None
+    operator_keys = (
+        _operator_keys(options.operator_keys) if options.operator_keys is not None else []
+    )
     if options.originator:
         if script is None or not script.is_source:
             raise DeployError(
@@ -122,9 +125,6 @@ def make_plan(options: Options, machine: Machine) -> Plan:
             "signing key otherwise"
         )
     keys = _robot_keys(options.keys, warnings) if options.keys is not None else []
-    operator_keys = (
-        _operator_keys(options.operator_keys) if options.operator_keys is not None else []
-    )
 
     network = autopilot.network or radio.network
     devices = tuple(dict.fromkeys(d for d in (autopilot.device, radio.device) if d))
