@@ -1,13 +1,16 @@
 """The node's unit says MemoryDenyWriteExecute=yes: no memory both writable and executable.
 Without systemd as PID 1 the unit cannot run here, but the kernel has the same rule of its
 own (prctl PR_SET_MDWE, Linux 6.3; systemd 254 and later use it for this very setting): a
-node started under it must fly, numpy, scipy, cryptography and ctypes included.
+node started under it must fly, numpy, scipy, cryptography and ctypes included. Where this
+test may make namespaces (root), the node also gets the unit's view of /proc
+(ProtectProc=invisible, ProcSubset=pid: its own processes, no /proc/cpuinfo and the like).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -57,12 +60,29 @@ def kernel_mdwe() -> None:
     assert probe.stdout.strip() == "refused"  # the rule is in force for the child
 
 
+#: Runs its arguments with /proc as the unit has it, in a mount and pid namespace.
+PROC_AS_THE_UNIT = [
+    "unshare", "--mount", "--pid", "--fork", "sh", "-c",
+    'mount -t proc -o subset=pid,hidepid=invisible proc /proc && test ! -e /proc/cpuinfo '
+    '&& exec "$@"', "sh",
+]  # fmt: skip
+
+
+def proc_as_the_unit() -> list[str]:
+    """PROC_AS_THE_UNIT where this machine lets the test make namespaces, else nothing."""
+    if os.geteuid() != 0 or shutil.which("unshare") is None:
+        return []
+    probe = subprocess.run([*PROC_AS_THE_UNIT, "true"], capture_output=True, check=False)
+    return PROC_AS_THE_UNIT if probe.returncode == 0 else []
+
+
 def test_the_node_flies_under_memory_deny_write_execute(tmp_path: Path, kernel_mdwe: None) -> None:
     """A node against a simulated ArduPilot on a pty, its script and its summary."""
     with pty_vehicle() as port:
-        argv = mdwe(sys.executable, "-m", "fieldkit", "node", "--profile", "solo", "--script",
-                    str(HELLO), "--autopilot", port, "--radio", "none", "--robot-id", "1",
-                    "--seconds", "1", "--out", str(tmp_path / "out"))  # fmt: skip
+        node = [sys.executable, "-m", "fieldkit", "node", "--profile", "solo", "--script",
+                str(HELLO), "--autopilot", port, "--radio", "none", "--robot-id", "1",
+                "--seconds", "1", "--out", str(tmp_path / "out")]  # fmt: skip
+        argv = proc_as_the_unit() + mdwe(*node)
         done = subprocess.run(argv, capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["ticks"] >= 1
