@@ -43,13 +43,49 @@ def deploy(plan: Plan, installer: Installer, systemctl: Systemctl | None) -> Cha
         )
     with installer.locked() as made:
         old = installer.manifest()  # again, under the lock
+        _warn_of_what_goes(plan, old, installer)
         if systemctl is not None:
             systemctl.run(sysusers_command(), stdin=sysusers())
         changes = installer.install(plan.entries, old, made)
+        _warn_of_the_state(plan, changes, installer)
         if systemctl is not None:
             systemctl.run_all(after_files(plan.units, plan.udev, changes.changed))
             systemctl.wait_ready(layout.NODE_UNIT, timeout_s=plan.node.timeout_start_s + 10)
     return changes
+
+
+def _warn_of_what_goes(plan: Plan, old: Manifest | None, installer: Installer) -> None:
+    """A deploy converges on its options: keys installed before and not given now go, and
+    the node then runs unsigned. Said, since that is rarely what one meant."""
+    if old is None:
+        return
+    wanted = {str(e.path) for e in plan.entries}
+    for directory, option in (
+        (layout.KEYS_DIR, "--keys"),
+        (layout.OPERATOR_KEYS_DIR, "--operator-keys"),
+    ):
+        going = sorted(
+            p for p in old.files if PurePosixPath(p).parent == directory and p not in wanted
+        )
+        if going:
+            installer.warn(
+                f"removing {', '.join(going)}, installed by the last deploy: give {option} "
+                "DIR again to keep them"
+            )
+
+
+def _warn_of_the_state(plan: Plan, changes: Changes, installer: Installer) -> None:
+    """A new script only seeds an empty state directory: a robot that ran before keeps
+    running its committed version. Said, with the two ways to change it."""
+    if plan.script is None or installer.path(plan.script.target) not in changes.written:
+        return
+    state = installer.path(layout.NODE_STATE_DIR)
+    if state.is_dir() and any(state.iterdir()):
+        installer.warn(
+            f"{state} holds the versions the node ran: it keeps running its committed one, "
+            f"not {plan.script.target}; send the new script as an update (fieldkit update), "
+            "or start afresh with `fieldkit deploy --uninstall --purge` first"
+        )
 
 
 def uninstall(installer: Installer, systemctl: Systemctl | None, purge: bool) -> Changes | None:

@@ -486,3 +486,21 @@ def test_without_systemd_it_says_so(tmp_path: Path) -> None:
 def test_layout_paths_are_the_robots(tmp_path: Path) -> None:
     """`under` puts a robot path inside a staging root, never outside it."""
     assert layout.under(tmp_path, layout.CONFIG) == tmp_path / "etc/fieldkit/fieldkit.toml"
+
+
+def test_what_a_new_deploy_will_not_do_is_said(tmp_path: Path, keys: Path) -> None:
+    """Keys not given again are removed (said: the node then runs unsigned); a new script
+    does not replace the version a node has committed (said, with the ways to do it)."""
+    root = tmp_path / "root"
+    assert (
+        deploy("--profile", "solo", "--root", root, "--script", HELLO, "--keys", keys).exit_code
+        == 0
+    )
+    (root / "var/lib/fieldkit/state").mkdir()
+    (root / "var/lib/fieldkit/state/committed").write_text("0\n")
+    result = deploy("--profile", "solo", "--root", root, "--script", TASKS)
+    assert result.exit_code == 0, result.output
+    removing = "warning: removing /etc/fieldkit/keys/operator.pub, /etc/fieldkit/keys/swarm.key, "
+    assert removing + "installed by the last deploy: give --keys DIR again" in result.stderr
+    assert not (root / "etc/fieldkit/keys/swarm.key").exists()
+    assert "it keeps running its committed one" in result.stderr
