@@ -605,3 +605,20 @@ def test_a_bad_usb_id_names_file_and_field(tmp_path: Path, value: str, expected:
     # Every problem of the table at once: the unknown field too.
     assert e.value.problems[0] == f"{path}: usb.serial: unknown field"
     assert e.value.problems[1].startswith(f"{path}: {expected}"), e.value.problems
+
+
+def test_the_stop_action_defaults_by_vehicle_and_is_checked(tmp_path: Path) -> None:
+    """`failsafe.on_stop`: hold for a UAV, stop for a ground robot; a ground robot cannot
+    land, and rtl is no stop action (the node must not fly off when told to stop)."""
+    assert load_profile("solo").failsafe.on_stop == "hold"
+    assert load_profile("husky").failsafe.on_stop == "stop"
+    for name, value, problem in [
+        ("husky", "land", 'must be one of "stop", "hold"'),
+        ("solo", "rtl", 'must be one of "hold", "land"'),
+    ]:
+        path = load_profile(name).path
+        assert path is not None
+        mine = tmp_path / f"{name}.toml"
+        mine.write_text(path.read_text().replace("[failsafe]", f'[failsafe]\non_stop = "{value}"'))
+        with pytest.raises(ProfileError, match=f"failsafe.on_stop: {problem}"):
+            load_profile(mine)

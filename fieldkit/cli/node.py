@@ -5,11 +5,10 @@ from __future__ import annotations
 import logging
 import math
 import re
-import signal
 import socket
-import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -18,7 +17,7 @@ import typer
 import bvm
 from bvm.errors import BuzzCompileError
 from fieldkit import resources
-from fieldkit.cli.errors import error_text, fail, usage_error
+from fieldkit.cli.errors import UsageProblem, error_text, fail, usage_error
 from fieldkit.cli.options import (
     CommandOption,
     KeysOption,
@@ -34,8 +33,9 @@ from fieldkit.cli.options import (
 from fieldkit.cli.output import out_dir, write_json, wrote
 
 if TYPE_CHECKING:
+    from fieldkit.node.journal import Journal
     from fieldkit.node.log import NodeLog
-    from fieldkit.node.node import Node
+    from fieldkit.node.service import ReloadCheck, ServiceSignals
     from fieldkit.radio.base import RadioLink
     from fieldkit.robot.link_security import LinkSecurity
     from fieldkit.robot.operator_command import CommandGate
@@ -115,8 +115,21 @@ def _reason(e: BaseException) -> str:
     return str(e)
 
 
+ConfigOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--config",
+        metavar="FILE",
+        help="Read the options from FILE's [node] table (fieldkit.toml, as `fieldkit deploy` "
+        "writes it); the command line overrides it.",
+    ),
+]
+
+
 def node_cmd(
-    profile: Annotated[str, typer.Option("--profile", help="Device profile (name or .toml).")],
+    profile: Annotated[
+        str | None, typer.Option("--profile", help="Device profile (name or .toml).")
+    ] = None,
     script: Annotated[
         Path | None,
         typer.Option(
@@ -149,23 +162,34 @@ def node_cmd(
         ),
     ] = None,
     record_max_mb: Annotated[
-        float,
+        float | None,
         typer.Option(
             "--record-max-mb",
-            help="Stop recording once the bag's parts together reach this size.",
+            help="Stop recording once the bag's parts together reach this size [default: 2048].",
+            show_default=False,
         ),
-    ] = 2048.0,
+    ] = None,
     include: Annotated[
         list[Path] | None, typer.Option("-I", "--include", help="Extra include directory.")
     ] = None,
     command: CommandOption = None,
     sets: SetOption = None,
     connect_timeout: Annotated[
-        float, typer.Option("--connect-timeout", help="Seconds to wait for the autopilot.")
-    ] = 30.0,
+        float | None,
+        typer.Option(
+            "--connect-timeout",
+            help="Seconds to wait for the autopilot [default: 30].",
+            show_default=False,
+        ),
+    ] = None,
     seed: Annotated[
-        int, typer.Option("--seed", help="Seed of the script's random draws (with the robot id).")
-    ] = 0,
+        int | None,
+        typer.Option(
+            "--seed",
+            help="Seed of the script's random draws (with the robot id) [default: 0].",
+            show_default=False,
+        ),
+    ] = None,
     state_dir: Annotated[
         Path | None,
         typer.Option(
@@ -175,58 +199,178 @@ def node_cmd(
     ] = None,
     keys: KeysOption = None,
     security: SecurityOption = None,
+    config: ConfigOption = None,
 ) -> None:
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
+    from fieldkit.node.service import ServiceSignals, StartupStopped
+
+    # From here on SIGTERM (systemd's stop) ends even the start-up cleanly.
+    signals = ServiceSignals()
+    try:
+        given = {
+            "profile": profile, "script": script, "autopilot": autopilot, "radio": radio,
+            "robot_id": robot_id, "seconds": seconds, "out": out, "record": record,
+            "record_max_mb": record_max_mb, "include": include, "command": command,
+            "set": sets, "connect_timeout": connect_timeout, "seed": seed,
+            "state_dir": state_dir, "keys": keys, "security": security,
+        }  # fmt: skip
+        options = node_options(given, config)
+        _node(options, signals)
+    except StartupStopped as e:
+        typer.echo(f"stopped by {e} during start-up: nothing was ordered to the vehicle")
+    finally:
+        signals.restore()
+
+
+@dataclass(frozen=True)
+class NodeOptions:
+    """The node's options once the config file and the command line are merged and checked."""
+
+    profile: str
+    script: Path | None
+    autopilot: str | None
+    radio: str | None
+    robot_id: int | None
+    seconds: float | None
+    out: Path | None
+    record: Path | None
+    record_max_mb: float
+    include: list[str]
+    command: list[str]
+    sets: list[str]
+    connect_timeout: float
+    seed: int
+    state_dir: Path | None
+    keys: Path | None
+    security: str | None
+    config: Path | None
+    #: What a new flight's bag is pruned against (the config's [record] keep_mb), and where.
+    record_keep: tuple[Path, float] | None = None
+
+
+def node_options(given: dict[str, Any], config: Path | None) -> NodeOptions:
+    """`given` (the command line, None where not given) over the config file's [node]."""
+    from fieldkit.node.config import NodeConfigError, load_config
+    from fieldkit.node.recording import new_flight_path
+
+    file: dict[str, Any] = {}
+    record_settings = None
+    if config is not None:
+        try:
+            loaded = load_config(config)
+        except NodeConfigError as e:
+            raise fail(e) from None
+        file = dict(loaded.node)
+        record_settings = loaded.record
+        for key in ("set", "command"):  # checked as the command line's, named by the file
+            try:
+                (parse_sets if key == "set" else parse_commands)(file.get(key))
+            except UsageProblem as e:
+                raise fail(f"{config}: node.{key}: {e.message}") from None
+
+    def pick(key: str) -> Any:
+        value = given[key]
+        return value if value is not None else file.get(key)
+
+    def path(key: str) -> Path | None:
+        value = pick(key)
+        return None if value is None else Path(value)
+
+    name = pick("profile")
+    if name is None:
+        raise usage_error("Missing option '--profile' (or --config FILE with node.profile)")
+    record = path("record")
+    max_mb = pick("record_max_mb")
+    keep = None
+    if record is None and record_settings is not None:
+        try:  # the folder of all flights is the config's: made if missing
+            record_settings.dir.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise fail(f"{config}: record.dir {record_settings.dir}: {e.strerror or e}") from None
+        record = new_flight_path(record_settings.dir)
+        max_mb = max_mb if max_mb is not None else record_settings.max_mb
+        if record_settings.keep_mb is not None:
+            keep = (record_settings.dir, record_settings.keep_mb)
+    return NodeOptions(
+        profile=str(name),
+        script=path("script"),
+        autopilot=pick("autopilot"),
+        radio=pick("radio"),
+        robot_id=pick("robot_id"),
+        seconds=pick("seconds"),
+        out=path("out"),
+        record=record,
+        record_max_mb=2048.0 if max_mb is None else float(max_mb),
+        include=[str(d) for d in pick("include") or []],
+        command=list(pick("command") or []),
+        # The file's values first, the command line's after them: the last one wins.
+        sets=list(file.get("set", [])) + list(given["set"] or []),
+        connect_timeout=30.0 if pick("connect_timeout") is None else pick("connect_timeout"),
+        seed=pick("seed") or 0,
+        state_dir=path("state_dir"),
+        keys=path("keys"),
+        security=pick("security"),
+        config=config,
+        record_keep=keep,
+    )
+
+
+def _node(o: NodeOptions, signals: ServiceSignals) -> None:
+    """Check everything that needs no device, open the radio, run the node."""
     from fieldkit.errors import FieldkitError
     from fieldkit.node.log import NodeLog
     from fieldkit.node.security import node_commands, node_security
     from fieldkit.robot.profiles import ProfileError, load_profile
 
     # Everything that can be checked without a device is, before any port is opened.
-    if script is None and state_dir is None:
+    if o.script is None and o.state_dir is None:
         raise usage_error("Missing option '--script' (or --state-dir DIR with a version in it)")
-    commands = parse_commands(command)  # ROBOT is checked against this node's id below
-    globals_ = parse_sets(sets)
+    commands = parse_commands(o.command)  # ROBOT is checked against this node's id below
+    globals_ = parse_sets(o.sets)
+    seconds = o.seconds
     if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
         raise fail(f"--seconds must be > 0, got {seconds:g}")
-    if not (math.isfinite(connect_timeout) and connect_timeout > 0):
-        raise fail(f"--connect-timeout must be > 0, got {connect_timeout:g}")
+    if not (math.isfinite(o.connect_timeout) and o.connect_timeout > 0):
+        raise fail(f"--connect-timeout must be > 0, got {o.connect_timeout:g}")
     try:
-        prof = load_profile(profile)
+        prof = load_profile(o.profile)
     except (ProfileError, OSError) as e:
         hint = f"\n{RADIO_HINT}" if re.search(r": radio[.:]", str(e)) else ""
         raise fail(f"{error_text(e)}{hint}") from None
-    rid = robot_id_from(prof, robot_id)
-    for text, c in zip(command or [], commands, strict=True):
+    rid = robot_id_from(prof, o.robot_id)
+    for text, c in zip(o.command, commands, strict=True):
         if c.robot != rid:
             raise fail(f"--command {text!r} is for robot {c.robot}, this node is robot {rid}")
-    includes = [str(d) for d in include or []]
-    if script is not None:
-        script = resources.find_script(script)
-    say = NodeLog(rid)
-    robot_keys = load_keys(keys) if keys is not None else None
-    mode = security_mode(security, robot_keys is not None, prof.radio.security)
+    script = resources.find_script(o.script) if o.script is not None else None
+    say = NodeLog(rid, journal=_journal())
+    robot_keys = load_keys(o.keys) if o.keys is not None else None
+    mode = security_mode(o.security, robot_keys is not None, prof.radio.security)
     store: VersionStore | None = None
-    if state_dir is None:
+    if o.state_dir is None:
         assert script is not None  # checked above
-        program = load_program(script, includes)
+        program = load_program(script, o.include)
         label = str(script)
     else:
-        store, version, program = open_versions(state_dir, script, includes, say)
+        store, version, program = open_versions(o.state_dir, script, o.include, say)
         label = f"version {version.version} ({version.hash[:12]}…)"
     try:
-        link_security = node_security(rid, mode, robot_keys, state_dir, say)
-        gate = node_commands(rid, robot_keys, state_dir)
+        link_security = node_security(rid, mode, robot_keys, o.state_dir, say)
+        gate = node_commands(rid, robot_keys, o.state_dir)
     except FieldkitError as e:  # no state dir, a damaged counter or floor file
         raise fail(e) from None
-    if out is not None:
-        out_dir(out)  # now, not after an hour's run
-    if record is not None:
-        check_record_path(record)
-        if not (math.isfinite(record_max_mb) and record_max_mb > 0):
-            raise fail(f"--record-max-mb must be > 0, got {record_max_mb:g}")
+    if o.out is not None:
+        out_dir(o.out)  # now, not after an hour's run
+    if o.record is not None:
+        check_record_path(o.record)
+        if not (math.isfinite(o.record_max_mb) and o.record_max_mb > 0):
+            raise fail(f"--record-max-mb must be > 0, got {o.record_max_mb:g}")
+        if o.record_keep is not None:
+            from fieldkit.node.recording import prune_flights
+
+            for gone in prune_flights(*o.record_keep, room_mb=o.record_max_mb):
+                say(f"recording: removed the oldest flight {gone} (record.keep_mb)")
     # The radio first: a missing XBee fails at once, not after the wait for the autopilot.
-    link_radio = open_node_radio(prof, radio, rid, say)
+    link_radio = open_node_radio(prof, o.radio, rid, say)
     warn_if_insecure(mode)
     say(f"security: {mode}" + ("" if mode == "signed" else " (bundles not authenticated)"))
     try:
@@ -235,26 +379,69 @@ def node_cmd(
             label,
             program,
             rid,
-            autopilot=autopilot,
+            autopilot=o.autopilot,
             radio=link_radio,
-            connect_timeout=connect_timeout,
+            connect_timeout=o.connect_timeout,
             seconds=seconds,
             commands=commands,
             globals_=globals_,
-            seed=seed,
-            out=out,
+            seed=o.seed,
+            out=o.out,
             say=say,
             store=store,
             keys=robot_keys,
             security=link_security,
             command_gate=gate,
-            record=record,
-            record_max_bytes=int(record_max_mb * 2**20),
+            record=o.record,
+            record_max_bytes=int(o.record_max_mb * 2**20),
             script_name=label,
+            signals=signals,
+            reload_check=None if o.config is None else lambda: check_reload(o),
         )
     finally:
         if link_radio is not None:
             link_radio.close()
+
+
+def _journal() -> Journal | None:
+    """journald's socket when systemd runs the node with its stdout in the journal."""
+    from fieldkit.node.journal import Journal, stdout_is_journal
+
+    return Journal("fieldkit-node") if stdout_is_journal() else None
+
+
+def check_reload(running: NodeOptions) -> str | None:
+    """SIGHUP's check of the config file and script as they are now: None if the node may
+    restart on them, else what is wrong (the checks of an update: it compiles, and passes
+    the trial in the simulator)."""
+    from fieldkit.node.config import NodeConfigError, load_config
+    from fieldkit.robot.profiles import ProfileError, load_profile
+    from fieldkit.sim.trial import trial
+
+    assert running.config is not None
+    try:
+        loaded = load_config(running.config)
+        name = loaded.node.get("profile", running.profile)
+        load_profile(name)
+    except (NodeConfigError, ProfileError, OSError) as e:
+        return str(e)
+    state_dir = loaded.node.get("state_dir")
+    script = loaded.node.get("script")
+    if state_dir is not None and any(Path(state_dir).glob("*")):
+        # A state directory's committed version runs; its script only seeds an empty one.
+        return None
+    if script is None:
+        return f"{running.config}: node.script: missing, and no state directory to run from"
+    try:
+        program = bvm.compile_file(
+            resources.find_script(script), include_dirs=list(loaded.node.get("include", []))
+        )
+    except BuzzCompileError as e:
+        return str(e)
+    except OSError as e:
+        return f"{script}: cannot read: {e.strerror or e}"
+    problems = trial(program, [name])
+    return "\n".join(problems) if problems else None
 
 
 def check_record_path(path: Path) -> None:
@@ -346,12 +533,19 @@ def _run(
     record: Path | None = None,
     record_max_bytes: int = 2**31,
     script_name: str = "",
+    signals: ServiceSignals | None = None,
+    reload_check: ReloadCheck | None = None,
 ) -> None:
-    """Connect to the autopilot, run the loop, stop cleanly; exit 1 if the script is failed."""
+    """Connect to the autopilot, run the loop, stop safely; exit 1 if the script is failed.
+
+    Stopped by a signal, the node orders the profile's stop action and awaits its ACK; a
+    reload whose check passed restarts the process in place on the new settings."""
     from fieldkit.node.autopilot_port import MavlinkAutopilot
     from fieldkit.node.clock import TickClock
+    from fieldkit.node.daemon import Notifier
     from fieldkit.node.node import Node
     from fieldkit.node.recording import NodeRecording
+    from fieldkit.node.service import NodeService, ServiceSignals
     from fieldkit.record.bag import BagError
     from fieldkit.vehicle.autopilot import AutopilotError
     from fieldkit.vehicle.link import Autopilot
@@ -359,6 +553,7 @@ def _run(
     # One time for the node and its autopilot core, frozen for each tick: a tick's decisions
     # (heartbeats, retries, commands due) then depend on its recorded time alone.
     tick_clock = TickClock()
+    notifier = Notifier()
     with _logging_to(say):
         try:
             link = Autopilot.from_profile(prof, autopilot, clock=tick_clock.now)
@@ -413,24 +608,54 @@ def _run(
                 except BagError as e:
                     raise fail(e) from None
                 say(f"recording to {record}")
-            with _stop_on_signals(node):
-                node.run(seconds)
+            service = NodeService(
+                node,
+                notifier,
+                signals if signals is not None else ServiceSignals(),
+                say,
+                reload_check=reload_check,
+            )
+            service.run(seconds)
             failed = node.finish()
+            stopped = service.signals.stop_signal is not None or service.reloading
+            if stopped:  # the profile's stop order; a run that is over leaves the vehicle be
+                stop = service.safe_stop(link)
         finally:
             link.close()
             if recording is not None:
                 recording.close()
                 wrote(recording.path)
-    why = "stopped by a signal" if node.stopping else "run over"
+    why = (
+        "reloading"
+        if service.reloading
+        else "stopped by a signal"
+        if service.signals.stop_signal is not None
+        else "run over"
+    )
     say(f"{why}: {node.runtime.ticks} ticks, {node.late_ticks} late")
+    summary = node.summary()
+    if stopped:
+        summary["stop"] = {"action": stop.action, "acknowledged": stop.acknowledged}
     if out is not None:
-        write_json(out / "summary.json", node.summary())
+        write_json(out / "summary.json", summary)
+    if service.reloading and service.signals.block_for_restart():
+        if notifier.watchdog_s is not None:
+            # No tick pings while the new process waits for the heartbeat and the fix:
+            # the watchdog is widened to that wait, and set back at its READY.
+            wait_s = connect_timeout + prof.autopilot.gps_fix_timeout_s + RESTART_MARGIN_S
+            notifier.send(f"WATCHDOG_USEC={round(wait_s * 1e6)}")
+        notifier.close()
+        _restart_in_place(say)
     if failed is not None:
         raise fail(
             f"{failed}\nrobot {rid}'s script stopped at this error and the robot ended the run "
             f"in its failsafe (on_script_error = {prof.failsafe.on_script_error})"
         )
 
+
+#: Seconds a restart in place may take beyond its waits for the heartbeat and the fix (the
+#: stream requests' settling, the script's preparation), for the widened watchdog.
+RESTART_MARGIN_S = 30.0
 
 #: Seconds the start-up gives the stream requests to be answered before the loop begins.
 STREAMS_SETTLE_S = 5.0
@@ -470,22 +695,13 @@ def _logging_to(say: NodeLog) -> Iterator[None]:
         ours.setLevel(saved[2])
 
 
-@contextmanager
-def _stop_on_signals(node: Node) -> Iterator[None]:
-    """Ctrl-C (SIGINT) or SIGTERM (systemd's stop) ends the loop at the end of its tick, so
-    `destroy()` runs and the summary is written; a second one interrupts at once."""
+def _restart_in_place(say: NodeLog) -> None:
+    """Replace this process by a fresh node with the same command line (same pid, so
+    systemd's service goes on): it reads the config and script anew."""
+    import os
+    import sys
 
-    def stop(signum: int, _frame: object) -> None:
-        node.stop()
-        for sig in saved:  # the next one is not asked twice
-            signal.signal(sig, signal.default_int_handler)
-
-    saved: dict[signal.Signals, Any] = {}
-    if threading.current_thread() is threading.main_thread():  # only it may take signals
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            saved[sig] = signal.signal(sig, stop)
-    try:
-        yield
-    finally:
-        for sig, handler in saved.items():
-            signal.signal(sig, handler)
+    say("reload: restarting on the new settings")
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(sys.executable, sys.orig_argv)

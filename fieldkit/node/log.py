@@ -6,6 +6,10 @@ one `NodeLog`, so a node's log reads in time order and each line names its robot
 is UTC wall time to the millisecond, ISO 8601 (`[2026-11-26T09:03:24.123Z] robot 4: ...`):
 nodes on different computers can be merged by time; the simulator stamps the same shape with
 simulated seconds (`[    9.300 s] robot 4: ...`).
+
+Under systemd (`journal` set, see fieldkit/node/journal.py) each line goes to journald
+instead, unstamped (the journal stamps it), with its priority (`error:` and `warning:` lines
+rank as such) and the fields ROBOT_ID and TICK (the tick in progress, `tick`).
 """
 
 from __future__ import annotations
@@ -16,6 +20,8 @@ import threading
 import time
 from collections.abc import Callable
 from typing import TextIO
+
+from fieldkit.node.journal import Journal, priority_of
 
 
 def wall_stamp(t: float) -> str:
@@ -36,11 +42,16 @@ class NodeLog:
         robot_id: int,
         stream: TextIO | None = None,
         wall: Callable[[], float] = time.time,
+        journal: Journal | None = None,
     ) -> None:
-        """`stream` defaults to sys.stdout as it is when a line is written."""
+        """`stream` defaults to sys.stdout as it is when a line is written; with `journal`,
+        lines go there first (the stream takes those it could not send)."""
         self.robot_id = robot_id
         self.stream = stream
         self.wall = wall
+        self.journal = journal
+        #: The tick in progress (the node sets it), sent as the journal's TICK field.
+        self.tick: int | None = None
         # The runtime logs from the node's loop, a radio or link thread may log too: the
         # lock keeps their lines whole and in the order they were stamped.
         self._lock = threading.Lock()
@@ -54,7 +65,17 @@ class NodeLog:
         """Stamp `text` with the time now and write it (flushed: a service's log is live)."""
         with self._lock:
             stream = self.stream if self.stream is not None else sys.stdout
-            stream.write(self.format(text, self.wall()) + "\n")
+            if self.journal is not None:
+                priority = priority_of(text)
+                fields = {"ROBOT_ID": str(self.robot_id)}
+                if self.tick is not None:
+                    fields["TICK"] = str(self.tick)
+                if self.journal.send(text, priority, fields):
+                    return
+                # journald's stream reads a `<N>` prefix as the line's priority.
+                stream.write(f"<{priority}>{self.format(text, self.wall())}\n")
+            else:
+                stream.write(self.format(text, self.wall()) + "\n")
             stream.flush()
 
     def handler(self) -> logging.Handler:

@@ -189,6 +189,8 @@ class Node:
         runtime = self.runtime
         updater = self.updater
         recorder = self.recorder
+        if isinstance(self.out, NodeLog):
+            self.out.tick = runtime.ticks  # the journal's TICK field
         if recorder is not None:
             recorder.begin_tick(runtime.ticks, now, unix_ns)
         # 1. radio in: update frames to the update agent, bundles to the runtime
@@ -244,14 +246,20 @@ class Node:
     # ------------------------------------------------------------ the loop
 
     def run(
-        self, seconds: float | None = None, sleep: Callable[[float], None] = time.sleep
+        self,
+        seconds: float | None = None,
+        sleep: Callable[[float], None] = time.sleep,
+        after_tick: Callable[[float], None] | None = None,
     ) -> None:
         """Tick at the profile's rate until `seconds` have passed (forever if None) or
-        `stop()` is called."""
+        `stop()` is called; `after_tick(now)` runs after each completed tick (the service's
+        watchdog ping: a loop stalled inside a tick never reaches it)."""
         start = self.clock()
         next_tick = start
         while not self.stopping and (seconds is None or self.clock() - start < seconds):
             self.tick()
+            if after_tick is not None:
+                after_tick(self.clock())
             next_tick += self.period
             now = self.clock()
             if now > next_tick:
@@ -284,6 +292,22 @@ class Node:
         if runtime.error is not before:  # destroy() failed
             failed = True
         return runtime.error if failed else None
+
+    def status_line(self) -> str:
+        """One line for `systemctl status`: tick, script state, neighbours, link health."""
+        runtime = self.runtime
+        heard = sum(1 for _, _, t in runtime.heard.values() if runtime.ticks - t <= runtime.timeout)
+        t = self.vehicle.telemetry()
+        state = runtime.state or runtime.status.name.lower()
+        failsafe = runtime.supervisor.failsafe
+        radio = self.radio.stats if self.radio is not None else Counter()
+        frames_in = radio.get("frames_in", 0) + radio.get("datagrams_in", 0)
+        return (
+            f"tick {runtime.ticks}, state {state}, {heard} neighbours, "
+            f"autopilot heartbeat {t.heartbeat_age_s:.1f} s ago, radio {frames_in} frames in"
+            + (f", failsafe {failsafe}" if failsafe else "")
+            + (f", {self.late_ticks} late ticks" if self.late_ticks else "")
+        )
 
     def summary(self) -> dict[str, object]:
         """What `--out DIR` writes to summary.json."""

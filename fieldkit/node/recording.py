@@ -38,6 +38,51 @@ def _size(path: Path) -> int:
         return 0
 
 
+def new_flight_path(folder: Path, now: float | None = None) -> Path:
+    """A new bag's path under the config's `record.dir`: `flight-<UTC time>` (a ROS 2
+    directory), made unique with `-2`, `-3`... when the clock repeats (a restart within a
+    second, a clock not yet set at boot)."""
+    import time
+
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(time.time() if now is None else now))
+    path = folder / f"flight-{stamp}"
+    n = 2
+    while path.exists() or Path(f"{path}_1").exists():
+        path = folder / f"flight-{stamp}-{n}"
+        n += 1
+    return path
+
+
+def prune_flights(folder: Path, keep_mb: float, *, room_mb: float) -> list[Path]:
+    """Remove the oldest flights under `folder` until they and a new one of `room_mb` fit
+    in `keep_mb` (the config's `record.keep_mb`); the removed ones, oldest first.
+
+    Only `flight-*` entries are touched (the names `new_flight_path` gives), oldest by
+    modification time, and never the last one left: the most recent flight is what an
+    operator asks for after a crash."""
+    import shutil
+
+    try:
+        flights = sorted(
+            (p for p in folder.glob("flight-*") if not p.is_symlink()),
+            key=lambda p: (p.stat().st_mtime, p.name),
+        )
+    except OSError:
+        return []
+    budget = keep_mb * 2**20 - room_mb * 2**20
+    total = sum(_size(p) for p in flights)
+    removed: list[Path] = []
+    while total > budget and len(flights) > 1:
+        oldest = flights.pop(0)
+        total -= _size(oldest)
+        if oldest.is_dir():
+            shutil.rmtree(oldest, ignore_errors=True)
+        else:
+            oldest.unlink(missing_ok=True)
+        removed.append(oldest)
+    return removed
+
+
 class NodeRecording:
     """One flight's recording: `tap` the link, `begin` once the node exists, `close` at the end.
 

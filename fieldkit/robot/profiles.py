@@ -138,6 +138,10 @@ class Failsafe:
     on_low_battery: FailsafeAction
     on_script_error: FailsafeAction
     low_battery_percent: float
+    #: What the node orders when it is stopped (SIGTERM, `systemctl stop`): "hold" keeps a
+    #: UAV where it is (a pilot or a restarted node takes over), "land" lands it; a ground
+    #: robot stops ("stop", its hold mode).
+    on_stop: FailsafeAction = "hold"
 
 
 @dataclass(frozen=True)
@@ -465,7 +469,15 @@ _AUTOPILOT = (
 _MODES = ("guided_mode", "loiter_mode", "land_mode", "rtl_mode")
 _NODE = ("loop_rate_hz",)
 _GEOFENCE = ("polygon", "max_altitude_m")
-_FAILSAFE = ("on_heartbeat_loss", "on_low_battery", "on_script_error", "low_battery_percent")
+_FAILSAFE = (
+    "on_heartbeat_loss",
+    "on_low_battery",
+    "on_script_error",
+    "low_battery_percent",
+    "on_stop",
+)
+STOP_ACTIONS: tuple[str, ...] = ("hold", "land")
+"""Allowed `failsafe.on_stop` for a UAV (a ground robot: "stop" or "hold")."""
 _BATTERY = ("full_voltage", "empty_voltage", "endurance_s", "capacity_wh")
 _RADIO = (
     "kind",
@@ -694,12 +706,14 @@ def _failsafe(c: _Checker, t: dict[str, Any] | None, vehicle: str | None) -> Fai
             a = None
         actions[key] = a
     low = c.get(t, "failsafe.low_battery_percent", _num(g=0.0, lt=100.0), 20.0)
+    allowed = GROUND_FAILSAFE_ACTIONS if ground else STOP_ACTIONS
+    on_stop = c.get(t, "failsafe.on_stop", _choice(allowed), "stop" if ground else "hold")
     heartbeat = actions["on_heartbeat_loss"]
     battery = actions["on_low_battery"]
     script = actions["on_script_error"]
-    if low is None or heartbeat is None or battery is None or script is None:
+    if low is None or heartbeat is None or battery is None or script is None or on_stop is None:
         return None
-    return Failsafe(heartbeat, battery, script, low_battery_percent=low)
+    return Failsafe(heartbeat, battery, script, low_battery_percent=low, on_stop=on_stop)
 
 
 def _battery(c: _Checker, t: dict[str, Any] | None) -> Battery | None:
