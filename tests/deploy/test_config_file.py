@@ -3,7 +3,6 @@ the node's config as deploy writes it."""
 
 from __future__ import annotations
 
-import importlib
 import math
 import tomllib
 from pathlib import Path
@@ -22,7 +21,7 @@ from fieldkit.deploy.config_file import (
     toml_value,
 )
 
-from .kit import deploy
+from .kit import TASKS, deploy
 
 values = st.one_of(
     st.text(),
@@ -98,14 +97,26 @@ def test_the_node_config_names_only_what_was_given() -> None:
 
 
 def test_the_nodes_loader_reads_it(tmp_path: Path, keys: Path) -> None:
-    """`fieldkit node --config` reads what deploy writes (its loader, issue 17's item 3, is
-    written apart: this runs once it is here)."""
-    try:
-        loader = importlib.import_module("fieldkit.node.config")
-    except ModuleNotFoundError:
-        pytest.skip("fieldkit.node.config (the --config loader) is not on this branch yet")
+    """`fieldkit node --config` reads what deploy writes, every key, as deploy meant it."""
+    from fieldkit.node.config import load_config
+
     root = tmp_path / "root"
-    result = deploy("--profile", "solo", "--root", root, "--robot-id", "3", "--keys", keys)
+    result = deploy("--profile", "husky", "--root", root, "--robot-id", "3", "--keys", keys,
+                    "--script", TASKS)  # fmt: skip
     assert result.exit_code == 0, result.output
-    load = getattr(loader, "load_config", None) or loader.load
-    load(root / "etc/fieldkit/fieldkit.toml")
+    config = load_config(root / "etc/fieldkit/fieldkit.toml")
+    assert dict(config.node) == {
+        "profile": "husky",
+        "robot_id": 3,
+        "autopilot": "/dev/autopilot",
+        "radio": "serial:///dev/xbee?baud=230400&api=2",
+        "state_dir": "/var/lib/fieldkit/state",
+        "script": "/var/lib/fieldkit/script/task_allocation.bzz",
+        "keys": "/etc/fieldkit/keys",
+        "security": "signed",
+        "include": ["/var/lib/fieldkit/script/include"],
+    }
+    assert config.record is not None
+    assert (str(config.record.dir), config.record.max_mb, config.record.keep_mb) == (
+        "/var/log/fieldkit", 2048.0, 8192.0,
+    )  # fmt: skip
