@@ -111,6 +111,7 @@ def deploy_cmd(
     ] = False,
 ) -> None:
     """Install this robot's node as a hardened systemd service (or stage it under --root)."""
+    from bvm.errors import BuzzCompileError, BuzzLoadError
     from fieldkit.deploy.deployment import deploy, system_owners
     from fieldkit.deploy.deployment import dry_run as dry
     from fieldkit.deploy.deployment import uninstall as remove
@@ -131,9 +132,11 @@ def deploy_cmd(
         raise fail(f"--root {root}: not a directory")
 
     def warn(text: str) -> None:
+        """A warning line on stderr."""
         typer.echo(f"warning: {text}", err=True)
 
     def say(text: str) -> None:
+        """A progress line on stderr (stdout has the summary, or the dry run)."""
         typer.echo(text, err=True)
 
     installer = Installer(target, owners=system_owners if live else None, warn=warn)
@@ -181,8 +184,10 @@ def deploy_cmd(
             except OSError as e:
                 raise fail(f"--root {root}: cannot create: {e.strerror or e}") from None
         changes = deploy(plan, installer, systemctl)
-    except (FieldkitError, OSError) as e:
-        raise fail(e) from None
+    except (FieldkitError, OSError, BuzzCompileError) as e:
+        raise fail(e) from None  # (a compile error says FILE:LINE:COL itself)
+    except BuzzLoadError as e:
+        raise fail(e, script) from None
     for path in changes.written:
         wrote(path)
     for path in changes.removed:

@@ -155,6 +155,7 @@ def make_plan(options: Options, machine: Machine) -> Plan:
     rules = [link.usb for link in links if link.usb is not None]
 
     def text(path: PurePosixPath, content: str, mode: int = 0o644) -> File:
+        """A text file of the install."""
         return File(path, content.encode(), mode)
 
     unit = layout.UNIT_DIR / layout.NODE_UNIT

@@ -58,6 +58,8 @@ def _bytecode(path: Path) -> ScriptInstall:
         release.program(str(path))
     except ReleaseError as e:
         raise DeployError(str(e)) from None
+    except bvm.BuzzLoadError as e:
+        raise DeployError(f"{path}: {e}") from None
     target = layout.SCRIPT_DIR / path.name
     files = {target: release.bo}
     for suffix, data in zip(SIDECARS, (release.bdb, release.bpos), strict=True):

@@ -504,3 +504,14 @@ def test_what_a_new_deploy_will_not_do_is_said(tmp_path: Path, keys: Path) -> No
     assert removing + "installed by the last deploy: give --keys DIR again" in result.stderr
     assert not (root / "etc/fieldkit/keys/swarm.key").exists()
     assert "it keeps running its committed one" in result.stderr
+
+
+def test_a_bytecode_file_that_does_not_load(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.bo"
+    bad.write_bytes(b"\x00\x01garbage")
+    root = tmp_path / "root"
+    result = deploy("--profile", "solo", "--root", root, "--script", bad)
+    assert result.exit_code == 1, result.output
+    (line,) = errors(result.stderr)
+    assert line.startswith(f"error: {bad}: "), line
+    assert not root.exists()
