@@ -169,14 +169,14 @@ def test_uninstall_leaves_the_tree_as_it_was(tmp_path: Path) -> None:
     assert f"kept {root / 'var/lib/fieldkit'}" in result.stderr
     assert "uninstalled from" in result.stdout
 
-    assert deploy(*args).exit_code == 0
+    assert deploy("--profile", "solo", "--root", root, "--script", HELLO).exit_code == 0
     purged = deploy("--root", root, "--uninstall", "--purge")
     assert purged.exit_code == 0, purged.output
     assert listing(root) == {**before, "var/log": ("dir", "0755")}  # made by the first deploy
     root2 = tmp_path / "root2"
     seed(root2)
     before2 = listing(root2)
-    assert deploy("--profile", "solo", "--root", root2, "--script", TASKS).exit_code == 0
+    assert deploy("--profile", "solo", "--root", root2, "--script", HELLO).exit_code == 0
     assert deploy("--root", root2, "--uninstall", "--purge").exit_code == 0
     assert listing(root2) == before2
 
@@ -232,7 +232,7 @@ def test_dry_run_prints_everything_and_changes_nothing(tmp_path: Path) -> None:
     assert "    | ExecStart=" in out and "    | DeviceAllow=/dev/xbee rw" in out
     assert f"file {root / 'var/lib/fieldkit/script/include/states.bzz'} (mode 0644, new)" in out
     assert "(no commands: --root stages the files only)" in out
-    assert deploy("--profile", "husky", "--root", root, "--script", TASKS).exit_code == 0
+    assert deploy("--profile", "husky", "--root", root, "--script", HELLO).exit_code == 0
     before = listing(root)
     again = deploy("--profile", "husky", "--root", root, "--robot-id", "4", "--dry-run")
     assert again.exit_code == 0 and listing(root) == before
@@ -498,7 +498,9 @@ def test_what_a_new_deploy_will_not_do_is_said(tmp_path: Path, keys: Path) -> No
     )
     (root / "var/lib/fieldkit/state").mkdir()
     (root / "var/lib/fieldkit/state/committed").write_text("0\n")
-    result = deploy("--profile", "solo", "--root", root, "--script", TASKS)
+    other = tmp_path / "other.bzz"
+    other.write_text("function init() {}\nfunction step() {}\n")
+    result = deploy("--profile", "solo", "--root", root, "--script", other)
     assert result.exit_code == 0, result.output
     removing = "warning: removing /etc/fieldkit/keys/operator.pub, /etc/fieldkit/keys/swarm.key, "
     assert removing + "installed by the last deploy: give --keys DIR again" in result.stderr

@@ -25,7 +25,7 @@ SECOND = ("--profile", "husky", "--script", str(HELLO), "--robot-id", "3")
 
 #: Where each case is killed: densely at the start (the lock, the manifest written before
 #: any change), then ever more sparsely; points past a deploy's last change let it finish.
-POINTS = (1, 2, 4, 7, 11, 16, 23, 32, 44)
+POINTS = (1, 2, 4, 8, 13, 19, 26, 44)
 
 
 def kill_at_each(points: tuple[int, ...], roots: dict[int, Path], *args: str) -> dict[int, int]:
@@ -110,7 +110,7 @@ def test_an_uninstall_killed_anywhere_is_finished_by_the_next(tmp_path: Path) ->
     shutil.copytree(template, reference, symlinks=True)
     assert deploy("--root", reference, "--uninstall", "--purge").exit_code == 0
     want = listing(reference, mtimes=False)
-    points = (1, 3, 6, 10, 15, 21)
+    points = (1, 3, 7, 12, 18)
     roots = copies(template, tmp_path, points)
     procs = {
         step: fieldkit("deploy", "--root", roots[step], "--uninstall", "--purge",
@@ -125,7 +125,7 @@ def test_an_uninstall_killed_anywhere_is_finished_by_the_next(tmp_path: Path) ->
         again = deploy("--root", roots[step], "--uninstall", "--purge")
         assert again.exit_code == 0, again.output
         assert listing(roots[step], mtimes=False) == want, f"after a kill at change {step}"
-    assert killed >= 5
+    assert killed >= 4
 
 
 def test_two_deploys_at_once(tmp_path: Path) -> None:
@@ -133,13 +133,14 @@ def test_two_deploys_at_once(tmp_path: Path) -> None:
     uninstall, fails at once naming the first one's pid, and changes nothing; the first one,
     continued, finishes its job."""
     root = tmp_path / "root"
-    assert deploy(*FIRST, "--root", root).exit_code == 0
+    small = ("--profile", "solo", "--script", str(HELLO), "--robot-id", "2")
+    assert deploy(*small, "--root", root).exit_code == 0
     first = fieldkit("deploy", *SECOND, "--root", root, env={CRASH_ENV: "1:STOP"})
     try:
         _, status = os.waitpid(first.pid, os.WUNTRACED)  # until it stops itself
         assert os.WIFSTOPPED(status), status
         during = listing(root)
-        second = fieldkit("deploy", *FIRST, "--root", root)
+        second = fieldkit("deploy", *small, "--root", root)
         _, err = second.communicate(timeout=60)
         assert second.returncode == 1, err
         assert errors(err) == [f"error: another fieldkit deploy is running (pid {first.pid})"]
@@ -152,6 +153,6 @@ def test_two_deploys_at_once(tmp_path: Path) -> None:
         _, err = first.communicate(timeout=60)
     assert first.returncode == 0, err
     reference = tmp_path / "reference"
-    assert deploy(*FIRST, "--root", reference).exit_code == 0
+    assert deploy(*small, "--root", reference).exit_code == 0
     assert deploy(*SECOND, "--root", reference).exit_code == 0
     assert listing(root, mtimes=False) == listing(reference, mtimes=False)
