@@ -2,9 +2,9 @@
 
 The rest of the build configuration is in pyproject.toml. This file exists for one thing
 pyproject.toml cannot say: `packages.find` names a package by the folder it sits in, while the
-device profiles and Buzz scripts stay at the repository's top level (where users, docs and
-tests look for them) yet must install inside fieldkit, as `fieldkit.device_profiles` and
-`fieldkit.buzz_scripts`, so that `importlib.resources` finds them in a wheel and in the
+device profiles, Buzz scripts and systemd templates stay at the repository's top level (where
+users, docs and tests look for them) yet must install inside fieldkit, as
+`fieldkit.device_profiles`, `fieldkit.buzz_scripts` and `fieldkit.systemd`, so that `importlib.resources` finds them in a wheel and in the
 editable install alike (see fieldkit/resources.py).
 """
 
@@ -13,6 +13,7 @@ from setuptools import find_namespace_packages, setup
 DATA_PACKAGES = {
     "fieldkit.device_profiles": "device_profiles",
     "fieldkit.buzz_scripts": "buzz_scripts",
+    "fieldkit.systemd": "systemd",
 }
 
 # Each data package with its sub-folders (include/, graphs/, examples/) as packages of their own,

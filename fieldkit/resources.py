@@ -1,10 +1,12 @@
-"""The data fieldkit ships: device profiles, Buzz scripts, task graphs and example scripts.
+"""The data fieldkit ships: device profiles, Buzz scripts, task graphs, example scripts and
+the systemd templates `fieldkit deploy` renders.
 
 They are package data, found through `importlib.resources`, so they are there wherever fieldkit
-is installed: in a checkout (`pip install -e .`), where the packages `fieldkit.device_profiles`
-and `fieldkit.buzz_scripts` are the repository's top-level `device_profiles/` and
-`buzz_scripts/` folders (setup.py maps them), and in a wheel, where they are copied under
-`fieldkit/`. This module is the one place that knows where they are.
+is installed: in a checkout (`pip install -e .`), where the packages `fieldkit.device_profiles`,
+`fieldkit.buzz_scripts` and `fieldkit.systemd` are the repository's top-level
+`device_profiles/`, `buzz_scripts/` and `systemd/` folders (setup.py maps them), and in a
+wheel, where they are copied under `fieldkit/`. This module is the one place that knows where
+they are.
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ PROFILES_PACKAGE = "fieldkit.device_profiles"
 """The package whose files are the shipped device profiles (`<name>.toml`)."""
 SCRIPTS_PACKAGE = "fieldkit.buzz_scripts"
 """The package whose files are the shipped Buzz scripts, with `include/`, `graphs/`, `examples/`."""
+SYSTEMD_PACKAGE = "fieldkit.systemd"
+"""The package whose files are the templates of `fieldkit deploy` (units, sysusers, udev)."""
 
 
 def _directory(package: str) -> Path:
@@ -34,6 +38,11 @@ def profile_dir() -> Path:
 def script_dir() -> Path:
     """The folder of the shipped Buzz scripts (`task_allocation.bzz`, `coverage.bzz`, ...)."""
     return _directory(SCRIPTS_PACKAGE)
+
+
+def systemd_dir() -> Path:
+    """The folder of the systemd templates (`fieldkit-node.service`, `fieldkit.sysusers`, ...)."""
+    return _directory(SYSTEMD_PACKAGE)
 
 
 def graph_dir() -> Path:
@@ -63,9 +72,11 @@ def find_script(path: str | Path) -> Path:
 __all__ = [
     "PROFILES_PACKAGE",
     "SCRIPTS_PACKAGE",
+    "SYSTEMD_PACKAGE",
     "example_dir",
     "find_script",
     "graph_dir",
     "profile_dir",
     "script_dir",
+    "systemd_dir",
 ]

@@ -95,6 +95,12 @@ CASES = [
     (["bag", "info", "{d}"], 1, "not a fieldkit bag"),
     (["bag", "from-tlog", "{d}/good.bzz", "-o", "{d}/o"], 1, "no MAVLink record"),
     (["bag", "from-tlog", "{d}/good.bzz"], 2, "Missing option"),
+    (["deploy", "--root", "{d}/r"], 2, "Missing option '--profile'"),
+    (["deploy", "--profile", "solo", "--root", "{d}/r", "--purge"], 2, "--purge"),
+    (["deploy", "--profile", "nope", "--root", "{d}/r"], 1, "unknown profile"),
+    (["deploy", "--profile", "solo", "--root", "{d}/r", "--script", "{d}/bad.bzz"], 1,
+     "bad.bzz:2:"),
+    (["deploy", "--profile", "solo", "--root", "{d}/file"], 1, "not a directory"),
     # values that parse but would never end, or overflow
     (["sitl", "--robots", "1", "--script", "{d}/good.bzz", "--out", "{d}/o", "--seconds", "inf"], 1,
      "--seconds"),
@@ -292,6 +298,7 @@ BASE: dict[str, dict[str, str | list[str]]] = {
         "tlog": str(ROOT / "tests" / "data" / "tlogs" / "quad-flight-arducopter.tlog"),
         "output": "{d}/out.bag",
     },
+    "deploy": {"profile": "solo", "root": "{d}/root", "script": "{d}/good.bzz", "robot_id": "1"},
 }  # fmt: skip
 
 
@@ -344,7 +351,7 @@ def _bad_inputs() -> list[tuple[tuple[str, ...], str, str, int, str]]:
             elif name == "out" and param.opts[0] == "--out":  # a directory to create
                 cases.append((path, name, "{d}/existing.txt", 1, "existing.txt"))
                 cases.append((path, name, "{d}/lockeddir/o", 1, "lockeddir"))
-            elif name == "directory":  # a directory to create (keys init)
+            elif name in ("directory", "root"):  # a directory to create (keys init, deploy)
                 cases.append((path, name, "{d}/existing.txt", 1, "existing.txt"))
                 cases.append((path, name, "{d}/lockeddir/k", 1, "lockeddir"))
             elif name in ("out", "output"):  # an output file

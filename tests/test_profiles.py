@@ -11,6 +11,7 @@ from fieldkit.robot.profiles import (
     PROFILE_DIR,
     Profile,
     ProfileError,
+    UsbIds,
     list_profiles,
     load_profile,
 )
@@ -567,6 +568,43 @@ def test_a_profile_that_asks_for_signed_bundles_needs_keys(tmp_path: Path) -> No
     )  # fmt: skip
     assert result.exit_code == 1
     assert "profile's [radio] security" in result.stderr and "--keys" in result.stderr
+
+
+def test_usb_ids_are_optional_and_lower_cased(tmp_path: Path) -> None:
+    """[usb] gives the serial adapters' ids for deploy's udev rules; without it, none."""
+    assert load_profile("husky").usb.autopilot == "26ac:0011"
+    assert load_profile("solo").usb.radio == "0403:6015"
+    assert load_profile("solo").usb.autopilot is None  # the Solo's autopilot is on WiFi
+    path = variant(tmp_path, "spiri", 'radio = "0403:6015"', 'radio = "0403:60AB"')
+    assert load_profile(path).usb.radio == "0403:60ab"
+    path = variant(tmp_path, "spiri", "[usb]\n", "[old_usb]\n")
+    with pytest.raises(ProfileError):  # (old_usb.radio is an unknown table)
+        load_profile(path)
+    text = shipped_text("spiri")
+    bare = tmp_path / "bare.toml"
+    bare.write_text(text[: text.index("[usb]")], encoding="utf-8")
+    assert load_profile(bare).usb == UsbIds(autopilot=None, radio=None)
+
+
+@pytest.mark.parametrize(
+    ("value", "expected"),
+    [
+        ('"0403-6015"', "usb.radio: must be VENDOR:PRODUCT, four hex digits each as lsusb "
+         "prints them (e.g. \"0403:6015\"), got '0403-6015'"),
+        ('"403:6015"', "usb.radio: must be VENDOR:PRODUCT"),
+        ('"0403:60156"', "usb.radio: must be VENDOR:PRODUCT"),
+        ('"04g3:6015"', "usb.radio: must be VENDOR:PRODUCT"),
+        ("4036015", "usb.radio: must be a string, got integer 4036015"),
+    ],
+)  # fmt: skip
+def test_a_bad_usb_id_names_file_and_field(tmp_path: Path, value: str, expected: str) -> None:
+    path = variant(tmp_path, "spiri", 'radio = "0403:6015"', f"radio = {value}",
+                   ("[usb]\n", "[usb]\nserial = 1\n"))  # fmt: skip
+    with pytest.raises(ProfileError) as e:
+        load_profile(path)
+    # Every problem of the table at once: the unknown field too.
+    assert e.value.problems[0] == f"{path}: usb.serial: unknown field"
+    assert e.value.problems[1].startswith(f"{path}: {expected}"), e.value.problems
 
 
 def test_the_stop_action_defaults_by_vehicle_and_is_checked(tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import shutil
 import site
 import subprocess
@@ -122,3 +123,31 @@ def test_the_recording_types_ship_as_package_data(venv: Path, tmp_path: Path) ->
         "mavros_msgs/msg/Mavlink",
     ]
     assert md5 == "41093e1fd0f3eea1da2aa33a177e5ba6"
+
+
+def test_deploy_stages_the_node_from_the_wheel(venv: Path, tmp_path: Path) -> None:
+    """`fieldkit deploy` from the wheel: the systemd templates ship, the shipped example is
+    found by name, and the unit runs this venv's interpreter (never a `fieldkit` on PATH)."""
+    root = tmp_path / "root"
+    cmd = [str(venv / "fieldkit"), "deploy", "--profile", "solo", "--root", str(root)]
+    done = run([*cmd, "--script", "examples/hello.bzz", "--robot-id", "1"], tmp_path)
+    assert done.returncode == 0, done.stderr
+    unit = root / "etc/systemd/system/fieldkit-node.service"
+    (exec_start,) = [
+        line for line in unit.read_text().splitlines() if line.startswith("ExecStart=")
+    ]
+    argv = shlex.split(exec_start.removeprefix("ExecStart="))
+    assert Path(argv[0]).is_absolute() and Path(argv[0]).parent == venv, argv
+    assert argv[1:] == ["-m", "fieldkit", "node", "--config", "/etc/fieldkit/fieldkit.toml"]
+    probe = "import fieldkit.resources as r; print(r.example_dir()); print(r.systemd_dir())"
+    examples, templates = run([str(venv / "python"), "-c", probe], tmp_path).stdout.split()
+    for shipped in (examples, templates):  # the wheel's own, not the checkout's
+        assert Path(shipped).is_relative_to(venv.parent) and not Path(shipped).is_relative_to(ROOT)
+    installed = root / "var/lib/fieldkit/script/hello.bzz"
+    assert installed.read_bytes() == (Path(examples) / "hello.bzz").read_bytes()
+    # This venv is under /tmp, which the service could not see: said (a staged root only).
+    assert "PrivateTmp=yes" in done.stderr
+    analyze = shutil.which("systemd-analyze")
+    if analyze is not None:
+        checked = run([analyze, "verify", "--man=no", str(unit)], tmp_path)
+        assert checked.returncode == 0 and checked.stderr == "", checked.stderr

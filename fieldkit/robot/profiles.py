@@ -17,6 +17,7 @@ in one pass.
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -182,6 +183,19 @@ class RobotId:
 
 
 @dataclass(frozen=True)
+class UsbIds:
+    """The USB adapters of the robot's serial links, as `VENDOR:PRODUCT` (lower-case hex).
+
+    `fieldkit deploy` turns them into udev rules that give the adapters stable names,
+    /dev/autopilot and /dev/xbee, whatever ttyUSB/ttyACM number the kernel hands out; None
+    where the link is not a USB serial adapter (a UART, a network link) or is not known.
+    """
+
+    autopilot: str | None = None
+    radio: str | None = None
+
+
+@dataclass(frozen=True)
 class Profile:
     """One robot model's complete device profile."""
 
@@ -197,6 +211,7 @@ class Profile:
     robot_id: RobotId
     description: str = ""
     path: Path | None = None  # the file it was loaded from
+    usb: UsbIds = field(default_factory=UsbIds)
 
     @property
     def is_ground(self) -> bool:
@@ -430,6 +445,7 @@ _TOP = (
     "battery",
     "radio",
     "robot_id",
+    "usb",
 )
 _KINEMATICS = (
     "max_speed_mps",
@@ -474,6 +490,7 @@ _RADIO = (
     "security",
 )
 _ROBOT_ID = ("source", "value")
+_USB = ("autopilot", "radio")
 
 _POSITIVE = _num(g=0.0)
 _PORT = _whole(1, 65535)
@@ -497,6 +514,7 @@ def parse_profile(data: Mapping[str, Any], source: str, path: Path | None = None
     battery = _battery(c, c.table(data, "battery", _BATTERY, True))
     radio = _radio(c, c.table(data, "radio", _RADIO, True))
     robot_id = _robot_id(c, c.table(data, "robot_id", _ROBOT_ID, False), radio)
+    usb = _usb(c, c.table(data, "usb", _USB, False))
 
     if c.problems:
         raise ProfileError(c.problems)
@@ -513,6 +531,7 @@ def parse_profile(data: Mapping[str, Any], source: str, path: Path | None = None
         robot_id=_checked(robot_id),
         description=description,
         path=path,
+        usb=_checked(usb),
     )
 
 
@@ -799,3 +818,34 @@ def _robot_id(c: _Checker, t: dict[str, Any] | None, radio: RadioSettings | None
     if source is None:
         return None
     return RobotId(source, value)
+
+
+_USB_ID = re.compile(r"[0-9a-fA-F]{4}:[0-9a-fA-F]{4}")
+_ABSENT: Any = object()  # an optional field left out (None means "recorded a problem")
+
+
+def _usb_id(c: _Checker, where: str, v: Any) -> str | None:
+    """`VENDOR:PRODUCT`, four hex digits each as `lsusb` prints them; kept lower-case."""
+    s = _str(c, where, v)
+    if s is not None and not _USB_ID.fullmatch(s):
+        c.fail(
+            where,
+            "must be VENDOR:PRODUCT, four hex digits each as lsusb prints them "
+            f'(e.g. "0403:6015"), got {s!r}',
+        )
+        return None
+    return None if s is None else s.lower()
+
+
+def _usb(c: _Checker, t: dict[str, Any] | None) -> UsbIds | None:
+    """[usb]: optional USB ids of the autopilot's and the radio's serial adapters."""
+    if t is None:
+        return None
+    autopilot = c.get(t, "usb.autopilot", _usb_id, _ABSENT)
+    radio = c.get(t, "usb.radio", _usb_id, _ABSENT)
+    if autopilot is None or radio is None:  # a problem was recorded
+        return None
+    return UsbIds(
+        autopilot=None if autopilot is _ABSENT else autopilot,
+        radio=None if radio is _ABSENT else radio,
+    )
