@@ -258,7 +258,8 @@ def device_access_problem(
             f"the {user.name} user is not in group {name}, which owns it ({perms}): the "
             "service cannot open it",
             f"sudo usermod -aG {name} {user.name}, {restart} (or re-run `fieldkit deploy`, "
-            f"which puts {user.name} in {SERIAL_GROUP})",
+            f"which puts {user.name} in {SERIAL_GROUP}): a service user outside the port's "
+            "group is the most common reason a robot's service cannot open its ports",
         )
     return (
         f"not readable and writable by the {user.name} user ({perms})",
@@ -565,6 +566,11 @@ def _autopilot_fix(profile: Profile, url: str, received: int, bad: int) -> str:
             f"bytes arrive but are not MAVLink: make the autopilot port's baud rate equal "
             f"the profile's autopilot.baud = {profile.autopilot.baud} (ArduPilot: SERIALn_BAUD), "
             "and its protocol MAVLink (SERIALn_PROTOCOL = 2)"
+        )
+    if received:
+        return (
+            f"MAVLink arrives on {url} but no vehicle heartbeat: check that the autopilot, not "
+            "only a radio or a ground station, is at the other end, and that it is powered"
         )
     if not is_device_path(url):
         return (
