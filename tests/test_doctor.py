@@ -544,6 +544,17 @@ def test_the_disk_needs_a_flights_cap_and_a_margin(tmp_path: Path) -> None:
     assert "state folder" not in apart.detail.split("\n")[0].split(":")[0]
 
 
+def test_doctor_reports_a_missing_record_folder_and_leaves_it_missing(tmp_path: Path) -> None:
+    config = write_config(tmp_path, radio="none")
+    (tmp_path / "rec").rmdir()
+    status, checks, _ = run(config, "--skip", "autopilot", "--skip", "serial")
+    assert status == 1
+    assert checks["disk"][0] == "FAIL"
+    assert f"record folder {tmp_path / 'rec'}: missing" in checks["disk"][1]
+    assert not (tmp_path / "rec").exists()  # the node makes it; doctor only looks
+    assert not (tmp_path / "state").exists()
+
+
 def test_the_record_folder_must_exist_and_be_the_services(tmp_path: Path) -> None:
     settings = _settings(tmp_path, record_dir=tmp_path / "gone")
     result = check_disk(settings, None, space=lambda p: Space(1, 10**12))

@@ -37,7 +37,8 @@ def load_settings(path: Path) -> Settings:
     if problems:
         raise NodeConfigError(problems)
     try:
-        o = node_options(dict.fromkeys(NODE_KEYS), path)
+        # Doctor reads: a missing record folder is the disk check's to report, not to make.
+        o = node_options(dict.fromkeys(NODE_KEYS), path, make_dirs=False)
     except UsageProblem as e:  # none left by the checks above: kept as a config problem
         raise NodeConfigError([f"{path}: {e.message}"]) from None
     return Settings(
