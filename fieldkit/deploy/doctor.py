@@ -685,6 +685,9 @@ def query_xbee(port: Any, api_mode: int, timeout: float) -> tuple[dict[bytes, An
                 and frame.command == AT_QUERIES[frame.frame_id - 1]
             ):
                 answers[frame.command] = frame
+        ap = answers.get(b"AP")
+        if ap is not None and ap.status == 0 and ap.data and ap.data[-1] != api_mode:
+            break  # another API mode: the other answers may never parse
     return dict(answers), received
 
 
