@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from digi.xbee.packets.common import ATCommPacket
 from pymavlink.dialects.v20 import common as mavlink2
 from rigs import pty_vehicle
 from typer.testing import CliRunner
@@ -49,7 +50,7 @@ from fieldkit.deploy.doctor import (
     user_may,
     xbee_verdict,
 )
-from fieldkit.radio.xbee import AtResponse
+from fieldkit.radio.xbee import AtCommand, AtResponse
 from fieldkit.robot.profiles import load_profile
 from fieldkit.update.release import Release
 from fieldkit.update.store import VersionStore
@@ -598,3 +599,13 @@ def test_an_xbee_that_answers_part_says_what_it_knows() -> None:
     )  # fmt: skip
     assert result.status == "ok"
     assert result.detail == ("XBee on /dev/xbee answers: API mode 2 (AP=2), network ID ?, serial ?")
+
+
+@pytest.mark.parametrize("api_mode", [1, 2])
+@pytest.mark.parametrize("command", doctor.AT_QUERIES)
+def test_the_at_command_frame_is_digis(api_mode: int, command: bytes) -> None:
+    frame = AtCommand(0x11, command).encode(api_mode)  # frame id 0x11: escaped in mode 2
+    digi = ATCommPacket(0x11, command.decode()).output(escaped=api_mode == 2)
+    assert frame == digi
+    # By hand: length 4, type 08, frame id 01, "AP", checksum FF - (08 + 01 + 41 + 50) = 65.
+    assert AtCommand(1, b"AP").encode(1) == bytes.fromhex("7e 00 04 08 01 41 50 65")
