@@ -487,7 +487,13 @@ def test_the_clock_is_compared_with_the_autopilots_gps_time() -> None:
     ok = check_clock(now, 0.4, "")
     assert ok.status == "ok" and "+0.4 s from the autopilot's GPS time" in ok.detail
     late = check_clock(now, 30.0, "")
-    assert late.status == "FAIL" and "is -30.0 s from the autopilot's GPS time" in late.detail
+    assert late.status == "FAIL" and "is 30.0 s behind the autopilot's GPS time" in late.detail
+    assert "sudo date -u -s '2026-05-28 20:27:10' (the autopilot's GPS time now)" in late.fix
+    ahead = check_clock(now, -7.5, "")
+    assert ahead.status == "FAIL" and "7.5 s ahead of the autopilot's" in ahead.detail
+    # A Pi booted in 1970 with a GPS fix: the fix line gives the time to set.
+    booted = check_clock(200.0, now - 200.0, "")
+    assert booted.status == "FAIL" and "'2026-05-28 20:26:40'" in booted.fix
     alone = check_clock(now, None, "not compared: the autopilot sent no SYSTEM_TIME")
     assert alone.status == "ok"
     assert alone.detail == "2026-05-28T20:26:40Z; not compared: the autopilot sent no SYSTEM_TIME"
@@ -572,11 +578,13 @@ def test_the_record_folder_must_exist_and_be_the_services(tmp_path: Path) -> Non
 
 def test_keys_the_service_user_cannot_read_fail(tmp_path: Path) -> None:
     keys = robot_keys(tmp_path)
+    keys.chmod(0o700)  # root's
     settings = _settings(tmp_path, keys=keys)
     result = check_keys(settings, load_profile("solo"), FIELDKIT)
     assert result.status == "FAIL"
     assert f"{keys / 'swarm.key'}: not readable by the fieldkit user" in result.detail
     assert f"sudo chown fieldkit: {keys / 'swarm.key'}" in result.fix
+    assert f"{keys}: the fieldkit user may not enter it" in result.detail
     assert check_keys(settings, load_profile("solo"), None).status == "ok"
 
 

@@ -885,6 +885,20 @@ def check_keys(
     except KeyFileError as e:
         found.append((f"{e.file}: {e.problem}", e.hint))
     if user is not None:
+        try:
+            st = paths.directory.stat()
+        except OSError:
+            pass  # load_robot_keys said so
+        else:
+            if not user_may(user, st.st_mode, st.st_uid, st.st_gid, 1):
+                found.append(
+                    (
+                        f"{paths.directory}: the {user.name} user may not enter it (owner "
+                        f"{_user_name(st.st_uid)}, mode {stat.S_IMODE(st.st_mode):04o})",
+                        f"sudo chown {user.name}: {paths.directory} && sudo chmod 700 "
+                        f"{paths.directory}",
+                    )
+                )
         for path in paths.robot_files:
             try:
                 st = path.stat()
@@ -917,10 +931,16 @@ def check_clock(now: float, autopilot_offset_s: float | None, autopilot: str) ->
     the line when there is no offset."""
     stamp = datetime.datetime.fromtimestamp(now, datetime.UTC)
     shown = stamp.strftime("%Y-%m-%dT%H:%M:%SZ")
+    known = autopilot_offset_s is not None and math.isfinite(autopilot_offset_s)
+    if known:
+        assert autopilot_offset_s is not None
+        gps = datetime.datetime.fromtimestamp(now + autopilot_offset_s, datetime.UTC)
+        setting = f"sudo date -u -s '{gps:%Y-%m-%d %H:%M:%S}' (the autopilot's GPS time now)"
+    else:
+        setting = "sudo date -u -s 'YYYY-MM-DD HH:MM:SS' from a good watch"
     fix = (
-        "set the time before the flight: with a network, sudo timedatectl set-ntp true; "
-        "without, sudo date -u -s 'YYYY-MM-DD HH:MM:SS' from a good watch, or give the "
-        "computer an RTC or chrony with the GPS as its source"
+        f"set the time before the flight: with a network, sudo timedatectl set-ntp true; "
+        f"without, {setting}; for good, an RTC, or chrony with the GPS as its source"
     )
     if stamp.year < MIN_YEAR:
         return _fail(
@@ -931,11 +951,12 @@ def check_clock(now: float, autopilot_offset_s: float | None, autopilot: str) ->
         )
     if autopilot_offset_s is None:
         return _ok("clock", f"{shown}; {autopilot}")
-    if not (math.isfinite(autopilot_offset_s) and abs(autopilot_offset_s) <= CLOCK_TOLERANCE_S):
+    if not (known and abs(autopilot_offset_s) <= CLOCK_TOLERANCE_S):
+        way = "behind" if autopilot_offset_s > 0 else "ahead of"
         return _fail(
             "clock",
-            f"the system time {shown} is {-autopilot_offset_s:+.1f} s from the autopilot's "
-            f"GPS time (at most {CLOCK_TOLERANCE_S:g} s passes)",
+            f"the system time {shown} is {abs(autopilot_offset_s):.1f} s {way} the "
+            f"autopilot's GPS time (at most {CLOCK_TOLERANCE_S:g} s passes)",
             fix,
         )
     return _ok("clock", f"{shown}, {autopilot_offset_s:+.1f} s from the autopilot's GPS time")
