@@ -294,6 +294,7 @@ BASE: dict[str, dict[str, str | list[str]]] = {
         "script": "{d}/good.bzz", "keys": "{d}/keys", "out": "{d}/o/p.patch", "base": "{d}/good.bo",
     },
     "bag info": {"bag": "{d}/nope"},
+    "doctor": {"config": "{d}/nope.toml", "timeout": "0.1", "skip": ["autopilot", "radio"]},
     "bag from-tlog": {
         "tlog": str(ROOT / "tests" / "data" / "tlogs" / "quad-flight-arducopter.tlog"),
         "output": "{d}/out.bag",

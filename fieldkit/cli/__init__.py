@@ -3,8 +3,8 @@
 One module per command group (`buzz`: compile, run, asm, disasm; `sim`: sim run, experiment,
 sweep; `node`; `vehicle_sim`; `sitl`; `update`; `keys`: keys init; `patch`: patch apply;
 `bag`: bag info, plot, from-tlog; `replay`: a recorded flight into a fresh node; `deploy`:
-the node as a systemd service), `errors` for the one way errors are reported and the
-exit-code rule, `output` for where results go.
+the node as a systemd service; `doctor`: the field preflight), `errors` for the one way
+errors are reported and the exit-code rule, `output` for where results go.
 Library modules never import this package.
 """
 
@@ -19,6 +19,7 @@ from fieldkit.cli import (
     bag,
     buzz,
     deploy,
+    doctor,
     keys,
     node,
     patch,
@@ -81,6 +82,7 @@ app.add_typer(patch.app, name="patch")
 app.add_typer(bag.app, name="bag")
 app.command("replay")(replay.replay_cmd)
 app.command("deploy")(deploy.deploy_cmd)
+app.command("doctor")(doctor.doctor_cmd)
 
 
 def main() -> None:

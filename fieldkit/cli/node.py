@@ -248,8 +248,11 @@ class NodeOptions:
     record_keep: tuple[Path, float] | None = None
 
 
-def node_options(given: dict[str, Any], config: Path | None) -> NodeOptions:
-    """`given` (the command line, None where not given) over the config file's [node]."""
+def node_options(
+    given: dict[str, Any], config: Path | None, *, make_dirs: bool = True
+) -> NodeOptions:
+    """`given` (the command line, None where not given) over the config file's [node].
+    `make_dirs` makes the config's record.dir (the node; `fieldkit doctor` only looks)."""
     from fieldkit.node.config import NodeConfigError, load_config
     from fieldkit.node.recording import new_flight_path
 
@@ -284,7 +287,8 @@ def node_options(given: dict[str, Any], config: Path | None) -> NodeOptions:
     keep = None
     if record is None and record_settings is not None:
         try:  # the folder of all flights is the config's: made if missing
-            record_settings.dir.mkdir(parents=True, exist_ok=True)
+            if make_dirs:
+                record_settings.dir.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise fail(f"{config}: record.dir {record_settings.dir}: {e.strerror or e}") from None
         record = new_flight_path(record_settings.dir)

@@ -10,7 +10,9 @@ One concept per module:
 * `script`: the script checked with bvm and the files that install it;
 * `plan`: every file, directory and command of one deployment, from its options;
 * `install`: staging, the manifest, the lock, uninstall (what touches the file system);
-* `systemctl`: the thin layer over systemctl, systemd-sysusers, systemd-tmpfiles, udevadm.
+* `systemctl`: the thin layer over systemctl, systemd-sysusers, systemd-tmpfiles, udevadm;
+* `doctor`: the field preflight (`fieldkit doctor`): the checks an operator runs before a
+  mission.
 
 See docs/deploy.md. This package may import `robot` (profiles) and `update` (keys), never
 the command line.

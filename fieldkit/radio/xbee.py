@@ -9,7 +9,9 @@ XbeeMav radios run) nothing is escaped; in API mode 2 (AP=2) every byte after th
 
 Frame types handled: transmit request 0x10 (what we write: broadcast to
 0x000000000000FFFF), receive packet 0x90 (what we read), transmit status 0x8B and modem
-status 0x8A (read, counted, otherwise ignored), AT command response 0x88 (parsed, unused).
+status 0x8A (read, counted, otherwise ignored), AT command response 0x88 (parsed; the
+answer to the local AT command 0x08 that `fieldkit doctor` writes to ask the module its
+settings).
 `transmit_request` reproduces XbeeMav's frame byte for byte: frame id 1, 16-bit destination
 FF FF (Digi documents FF FE, "unknown", but XbeeMav sends FF FF and DigiMesh ignores the
 field), radius 0, options 0 — the docs/bundle.md#worked-example frame
@@ -72,6 +74,8 @@ MODEM_STATUS = 0x8A
 """Frame type: modem status (module -> host)."""
 AT_RESPONSE = 0x88
 """Frame type: AT command response (module -> host)."""
+AT_COMMAND = 0x08
+"""Frame type: local AT command (host -> module): a query or a setting, answered by 0x88."""
 BROADCAST64 = 0x000000000000FFFF
 """The 64-bit broadcast address."""
 XBEEMAV_DEST16 = 0xFFFF
@@ -189,6 +193,23 @@ class AtResponse(_ApiFrame):
     def frame_data(self) -> bytes:
         """The frame data: type byte, fields, command data."""
         return _AT_HEAD.pack(AT_RESPONSE, self.frame_id, self.command, self.status) + self.data
+
+
+@dataclass(frozen=True, slots=True)
+class AtCommand(_ApiFrame):
+    """Frame 0x08: a local AT command, e.g. b"AP" (a query without `parameter`); the module
+    answers with an `AtResponse` of the same frame id (0: no answer). Host to module only:
+    `FrameReader` counts one as an unknown type, since no module sends it."""
+
+    frame_id: int
+    command: bytes
+    parameter: bytes = b""
+
+    def frame_data(self) -> bytes:
+        """The frame data: type byte, frame id, the two command letters, the parameter."""
+        if len(self.command) != 2:
+            raise ValueError(f"an AT command is two letters, got {self.command!r}")
+        return bytes((AT_COMMAND, self.frame_id)) + self.command + self.parameter
 
 
 Frame = TransmitRequest | ReceivePacket | TransmitStatus | ModemStatus | AtResponse

@@ -23,6 +23,7 @@ import select
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import parse_qsl, urlencode, urlsplit
 
@@ -36,6 +37,50 @@ from .xbeemav import DEFAULT_BAUD, XbeeMav
 _OUR_PARAMS = ("baud", "api", "unknown")
 
 _log = logging.getLogger("fieldkit.radio")
+
+
+@dataclass(frozen=True)
+class XBeeUrl:
+    """Where a radio URL's XBee is: a device path or a pyserial URL (exactly one), and the
+    `XBeeRadio` options its query gives (`baud`, `api_mode`, `unknown`)."""
+
+    device: str | None
+    pyserial_url: str | None = None
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+
+def parse_url(url: str) -> XBeeUrl:
+    """Read `serial:///dev/ttyUSB0?baud=230400&api=1`, a device path or a pyserial URL
+    (`loop://...`, its own query keys kept); ValueError names what does not parse."""
+    parts = urlsplit(url)
+    if not parts.scheme or len(parts.scheme) == 1:  # "/dev/ttyUSB0", "COM3", "C:\\..."
+        return XBeeUrl(url)
+    query = parse_qsl(parts.query, keep_blank_values=True)
+    ours = {k: v for k, v in query if k in _OUR_PARAMS}
+    theirs = [(k, v) for k, v in query if k not in _OUR_PARAMS]
+    options: dict[str, Any] = {}
+    try:
+        if "baud" in ours:
+            options["baud"] = int(ours["baud"])
+        if "api" in ours:
+            options["api_mode"] = int(ours["api"])
+    except ValueError:
+        raise ValueError(f"bad baud or api in {url!r}") from None
+    if "unknown" in ours:
+        options["unknown"] = ours["unknown"]
+    if parts.scheme == "serial":
+        if theirs:
+            raise ValueError(f"unknown query keys {[k for k, _ in theirs]} in {url!r}")
+        path = parts.netloc + parts.path
+        if not path:
+            raise ValueError(f"no device in {url!r}")
+        return XBeeUrl(path, options=options)
+    # Any other scheme is one of pyserial's URL handlers, given its own query keys. Their
+    # writes block (loop:// refuses every write with write_timeout=0): tests and bridges.
+    inner = f"{parts.scheme}://{parts.netloc}{parts.path}"
+    if theirs:
+        inner += "?" + urlencode(theirs)
+    return XBeeUrl(None, inner, options)
 
 
 class XBeeRadio:
@@ -145,34 +190,14 @@ class XBeeRadio:
         keys and is opened with blocking writes, for tests and bridges. Query keys: baud, api
         (1 or 2), unknown (drop or sysid); they override `kwargs`.
         """
-        parts = urlsplit(url)
-        if not parts.scheme or len(parts.scheme) == 1:  # "/dev/ttyUSB0", "COM3", "C:\\..."
-            return cls(url, robot_id, **kwargs)
-        query = parse_qsl(parts.query, keep_blank_values=True)
-        ours = {k: v for k, v in query if k in _OUR_PARAMS}
-        theirs = [(k, v) for k, v in query if k not in _OUR_PARAMS]
-        try:
-            if "baud" in ours:
-                kwargs["baud"] = int(ours["baud"])
-            if "api" in ours:
-                kwargs["api_mode"] = int(ours["api"])
-        except ValueError:
-            raise ValueError(f"bad baud or api in {url!r}") from None
-        if "unknown" in ours:
-            kwargs["unknown"] = ours["unknown"]
-        if parts.scheme == "serial":
-            if theirs:
-                raise ValueError(f"unknown query keys {[k for k, _ in theirs]} in {url!r}")
-            path = parts.netloc + parts.path
-            if not path:
-                raise ValueError(f"no device in {url!r}")
-            return cls(path, robot_id, **kwargs)
-        # Any other scheme is one of pyserial's URL handlers, given its own query keys. Their
-        # writes block (loop:// refuses every write with write_timeout=0): tests and bridges.
-        inner = f"{parts.scheme}://{parts.netloc}{parts.path}"
-        if theirs:
-            inner += "?" + urlencode(theirs)
-        port = serial.serial_for_url(inner, kwargs.get("baud", DEFAULT_BAUD), timeout=0)
+        where = parse_url(url)
+        kwargs.update(where.options)
+        if where.device is not None:
+            return cls(where.device, robot_id, **kwargs)
+        assert where.pyserial_url is not None
+        port = serial.serial_for_url(
+            where.pyserial_url, kwargs.get("baud", DEFAULT_BAUD), timeout=0
+        )
         return cls(port, robot_id, **kwargs)
 
     # ------------------------------------------------------------------ RadioLink

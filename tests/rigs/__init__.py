@@ -195,11 +195,14 @@ class MemoryRig(_SteppedRig):
 
 
 @contextmanager
-def pty_vehicle(home: tuple[float, float] = RIG_HOME, profile: str = "solo") -> Iterator[str]:
-    """A simulated ArduPilot on a pty, GPS fixed, stepped in real time by a thread (as
-    `fieldkit vehicle-sim` runs it): yields the pty's path, for a `fieldkit node` to open."""
+def pty_vehicle(
+    home: tuple[float, float] = RIG_HOME, profile: str = "solo", gps_fix_delay_s: float = 0.0
+) -> Iterator[str]:
+    """A simulated ArduPilot on a pty, GPS fixed (after `gps_fix_delay_s` simulated
+    seconds), stepped in real time by a thread (as `fieldkit vehicle-sim` runs it): yields
+    the pty's path, for a `fieldkit node` to open."""
     pty = open_pty()
-    sim = SimVehicle(load_profile(profile), pty.master, home=home, gps_fix_delay_s=0.0)
+    sim = SimVehicle(load_profile(profile), pty.master, home=home, gps_fix_delay_s=gps_fix_delay_s)
     stop = threading.Event()
     thread = threading.Thread(target=sim.run, args=(50.0, stop), daemon=True)
     thread.start()
