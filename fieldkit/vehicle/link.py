@@ -41,6 +41,7 @@ from fieldkit.vehicle.autopilot import (
     describe_error,
 )
 from fieldkit.vehicle.mavlink import adopt_codec
+from fieldkit.vehicle.px4 import Px4Core
 
 # A single poll reads at most this much, so that a flooded line cannot starve the loop.
 _MAX_READ_PER_POLL = 1 << 16
@@ -79,11 +80,14 @@ class Autopilot(AutopilotCore):
 
     @classmethod
     def from_profile(cls, profile: Profile, url: str | None = None, **kwargs: Any) -> Autopilot:
-        """A link as the profile says (`autopilot.url`, `autopilot.baud`), or to `url`."""
+        """A link as the profile says (`autopilot.url`, `autopilot.baud`), or to `url`; the
+        core by `autopilot.flavour` (px4: `Px4Autopilot`, PX4's OFFBOARD conversation)."""
         if profile.autopilot.flavour == "dji":
             raise AutopilotError(
                 f"{profile.name}: the DJI Onboard SDK does not speak MAVLink (flavour dji)"
             )
+        if profile.autopilot.flavour == "px4" and cls is Autopilot:
+            cls = Px4Autopilot
         return cls(
             url if url is not None else profile.autopilot.url,
             baud=profile.autopilot.baud,
@@ -258,3 +262,8 @@ class Autopilot(AutopilotCore):
                 return False
             if idle is not None:
                 idle()
+
+
+class Px4Autopilot(Autopilot, Px4Core):
+    """The node's MAVLink link to PX4: `Px4Core` (OFFBOARD setpoint stream, PX4 modes) on a
+    pymavlink connection; the port is `Autopilot`'s, the conversation `Px4Core`'s."""
