@@ -54,6 +54,9 @@ FORCE_DISARM = 21196
 """COMPONENT_ARM_DISARM param2 that disarms an ArduPilot vehicle even in the air."""
 RC_UNUSED = (0, 65535)
 """RC channel values that mean "no such channel" in RC_CHANNELS."""
+MAX_ALTITUDE_M = 100_000.0
+"""Setpoint altitudes beyond this many metres from home are refused (not an altitude)."""
+_FLOAT32_MAX = 3.4028234663852886e38
 
 # SET_POSITION_TARGET type_mask: use the position only (ignore velocity, acceleration, yaw
 # rate, and yaw unless given). Bits: 0-2 position, 3-5 velocity, 6-8 acceleration, 10 yaw,
@@ -821,7 +824,9 @@ class AutopilotCore:
         on_accept: Callable[[], None] | None = None,
         optional: bool = False,
     ) -> _Step:
-        p = [float(x) for x in params][:7]
+        # MAVLink params are float32: a finite value beyond its range saturates to infinity
+        # (which autopilots refuse) rather than fail to pack at send time.
+        p = [_float32(float(x)) for x in params][:7]
         p += [0.0] * (7 - len(p))
 
         def send(confirmation: int) -> None:
@@ -912,7 +917,7 @@ class AutopilotCore:
         if self.ground:
             who = self.profile.name if self.profile is not None else "this vehicle"
             return self._refused(name, f"{who} is a ground robot: it does not fly", on_done)
-        if not (math.isfinite(alt) and alt > 0.0):
+        if not (math.isfinite(alt) and 0.0 < alt <= MAX_ALTITUDE_M):
             return self._refused(name, f"altitude must be > 0 m, got {alt}", on_done)
         mode = self._mode_step(self.guided_mode)
         if isinstance(mode, str):
@@ -973,6 +978,8 @@ class AutopilotCore:
             return self._refused(name, "non-finite coordinates", on_done)
         if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
             return self._refused(name, "latitude or longitude out of range", on_done)
+        if abs(alt) > MAX_ALTITUDE_M:
+            return self._refused(name, f"altitude beyond {MAX_ALTITUDE_M:g} m", on_done)
         if self.target_system is None:
             return self._refused(name, "no heartbeat from the autopilot yet", on_done)
         if self.ground:
@@ -1059,6 +1066,11 @@ class AutopilotCore:
             )
         )
         return steps
+
+
+def _float32(x: float) -> float:
+    """`x` as MAVLink's float32 can carry it: beyond its range, infinity of the same sign."""
+    return math.copysign(math.inf, x) if math.isfinite(x) and abs(x) > _FLOAT32_MAX else x
 
 
 def _on_earth(lat_e7: int, lon_e7: int) -> bool:

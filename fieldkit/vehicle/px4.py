@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any, Unpack
 from pymavlink.dialects.v20 import all as mavlink2
 
 from fieldkit.vehicle.autopilot import (
+    MAX_ALTITUDE_M,
     AutopilotCore,
     CoreOptions,
     MavCommand,
@@ -126,6 +127,8 @@ MASK_POSITION_YAW = 0x09F8
 # Seconds a recorded break in our stream still explains PX4 leaving OFFBOARD.
 _GAP_MEMORY_S = 5.0
 _STATUSTEXT_WINDOW_S = 2.0
+# An AMSL altitude beyond this is no reference (a hostile GLOBAL_POSITION_INT made it).
+_MAX_AMSL_M = 1e6
 
 
 def custom_mode(main: int, sub: int = 0) -> int:
@@ -268,16 +271,25 @@ class Px4Core(AutopilotCore):
             return t.alt_msl_m - t.alt_rel_m
         return t.home[2] if t.home is not None else None
 
+    def _setpoint_amsl(self) -> float | None:
+        """The setpoint's altitude above mean sea level, or None without a usable reference."""
+        home = self._home_amsl()
+        if self.setpoint is None or home is None:
+            return None
+        amsl = home + self.setpoint[2]
+        return amsl if abs(amsl) <= _MAX_AMSL_M else None
+
     def _send_setpoint(self, now: float) -> bool:
         """Send the setpoint now (False, and an event once, without an altitude reference)."""
         assert self.setpoint is not None
         lat, lon, alt, yaw_deg = self.setpoint
-        home = self._home_amsl()
-        if home is None or self.target_system is None:
+        amsl = self._setpoint_amsl()
+        if amsl is None or self.target_system is None:
             if not self._no_reference_told:
                 self._no_reference_told = True
                 self._event("link", f"{self.url}: setpoint not sent: no altitude reference yet")
             return False
+        self._no_reference_told = False
         last = self._last_setpoint
         if last is not None:
             gap = now - last
@@ -302,14 +314,14 @@ class Px4Core(AutopilotCore):
             MASK_POSITION if yaw_deg is None else MASK_POSITION_YAW,
             int(round(lat * 1e7)),
             int(round(lon * 1e7)),
-            float(home + alt),
+            float(amsl),
             0.0,
             0.0,
             0.0,
             0.0,
             0.0,
             0.0,
-            0.0 if yaw_deg is None else math.radians(yaw_deg),
+            0.0 if yaw_deg is None or not math.isfinite(yaw_deg) else math.radians(yaw_deg),
             0.0,
         )
         self._last_setpoint = now
@@ -432,7 +444,7 @@ class Px4Core(AutopilotCore):
         if self.ground:
             who = self.profile.name if self.profile is not None else "this vehicle"
             return self._refused(name, f"{who} is a ground robot: it does not fly", on_done)
-        if not (math.isfinite(alt) and alt > 0.0):
+        if not (math.isfinite(alt) and 0.0 < alt <= MAX_ALTITUDE_M):
             return self._refused(name, f"altitude must be > 0 m, got {alt}", on_done)
         if self.target_system is None:
             return self._refused(name, "no heartbeat from the autopilot yet", on_done)
@@ -474,6 +486,8 @@ class Px4Core(AutopilotCore):
             return self._refused(name, "non-finite coordinates", on_done)
         if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
             return self._refused(name, "latitude or longitude out of range", on_done)
+        if abs(alt) > MAX_ALTITUDE_M:
+            return self._refused(name, f"altitude beyond {MAX_ALTITUDE_M:g} m", on_done)
         if self.target_system is None:
             return self._refused(name, "no heartbeat from the autopilot yet", on_done)
         if self.offboard_lost is not None:
