@@ -439,6 +439,25 @@ def test_the_pilots_switch_out_of_offboard_is_the_pilots(
     assert rig.run_until(lambda: t.mode == OFFBOARD and not rig.link.pilot_override, 2.0)
 
 
+def test_a_switch_on_its_way_is_given_up_when_the_pilot_takes_over(
+    make_rig: Callable[..., MemoryRig],
+) -> None:
+    """Found by the fuzzer: a retry of an OFFBOARD switch sent before the pilot's switch
+    would take the vehicle back from the pilot. It is given up instead."""
+    rig = make_rig()
+    airborne(rig)
+    rig.sim.faults.drop_acks = 3  # our switch arrives, its answers do not
+    cmd = rig.link.set_mode(OFFBOARD)
+    rig.tick()
+    assert cmd.status is CommandStatus.ACTIVE and rig.sim.commands[SET_MODE] == 2
+    assert rig.sim.pilot_switch("POSCTL")
+    finish(rig, cmd, 5.0)
+    assert cmd.status is CommandStatus.CANCELLED
+    assert cmd.error == "set_mode OFFBOARD: PX4 left OFFBOARD for POSCTL: not switching back"
+    rig.run_for(3.0)
+    assert rig.sim.commands[SET_MODE] == 2 and rig.sim.mode == "POSCTL"  # no retry
+
+
 def test_a_lost_ack_of_the_switch_is_retried(make_rig: Callable[..., MemoryRig]) -> None:
     rig = make_rig()
     rig.connect(10.0)

@@ -368,6 +368,12 @@ class Px4Core(AutopilotCore):
         reason = self._offboard_loss_reason(now)
         self.offboard_lost = f"now in {mode}: {reason}"
         self._stop_stream()
+        # A switch to OFFBOARD still on its way (a retry, a take-off's) would fight the
+        # pilot: it is given up.
+        label = f"mode {OFFBOARD}"
+        for cmd in self.pending:
+            if any(step.label == label for step in cmd._steps[cmd._index :]):
+                self.cancel(cmd, f"PX4 left OFFBOARD for {mode}: not switching back")
         return (
             f"PX4 left OFFBOARD for {mode} without the node: {reason}; the node will not "
             "switch back (the pilot has it, or a new takeoff/set_mode OFFBOARD)"
