@@ -162,9 +162,7 @@ def param_value(msg: Any) -> float | None:
     if msg.param_type in (mavlink2.MAV_PARAM_TYPE_INT32, mavlink2.MAV_PARAM_TYPE_UINT32):
         fmt = "<i" if msg.param_type == mavlink2.MAV_PARAM_TYPE_INT32 else "<I"
         return float(struct.unpack(fmt, struct.pack("<f", value))[0])
-    if msg.param_type in (mavlink2.MAV_PARAM_TYPE_INT8, mavlink2.MAV_PARAM_TYPE_INT16):
-        return float(struct.unpack("<i", struct.pack("<f", value))[0])
-    return float(value) if math.isfinite(value) else None
+    return float(value) if math.isfinite(value) else None  # PX4 has REAL32 besides INT32
 
 
 def param_name(msg: Any) -> str:
@@ -513,14 +511,14 @@ class Px4Core(AutopilotCore):
         return self._over_at_once(name, on_done)
 
     def _should_engage(self) -> bool:
-        """Whether a goto should take the vehicle (back) into OFFBOARD: it flies, in a mode
-        the node chose, and no OFFBOARD switch is on its way."""
+        """Whether a goto should take the vehicle (back) into OFFBOARD: it flies (a ground
+        robot: it is armed), in a mode the node chose, and no OFFBOARD switch is on its way."""
         t = self.telemetry
         if t.mode == OFFBOARD or self._commanded_mode == OFFBOARD:
             return False  # there, or asked for and accepted (the heartbeat comes at 1 Hz)
-        if not t.armed or self.mode_override or t.rc_override:
-            return False
-        if t.landed_state != mavlink2.MAV_LANDED_STATE_IN_AIR:
+        if not t.armed or self._commanded_mode is None or self.mode_override or t.rc_override:
+            return False  # not flying, or in a mode the node never chose: the pilot's
+        if not self.ground and t.landed_state != mavlink2.MAV_LANDED_STATE_IN_AIR:
             return False  # on the ground, taking off or landing: takeoff() is for that
         label = f"mode {OFFBOARD}"
         return not any(

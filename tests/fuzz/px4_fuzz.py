@@ -269,6 +269,20 @@ def apply_order(core: Px4Core, kind: str, args: tuple[Any, ...]) -> None:
 # ---------------------------------------------------------------- inputs
 
 
+_PX4_ENCODER = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+_PACKED: dict[bytes, bytes] = {}
+
+
+def _packed(msg: Any) -> bytes:
+    """A setup message from PX4 as bytes, encoded once (inputs share their setups)."""
+    key = msg.get_type().encode() + repr(msg.to_dict()).encode()
+    data = _PACKED.get(key)
+    if data is None:
+        _PX4_ENCODER.seq = 0
+        data = _PACKED[key] = bytes(msg.pack(_PX4_ENCODER))
+    return data
+
+
 def make_input(seed: str, k: int) -> tuple[str, bool, list[Event]]:
     """(the starting state, whether with the Spiri's profile, the events)."""
     rng = random.Random(f"{seed}:{k}")
@@ -322,8 +336,7 @@ class Harness:
             pos, k = pos + n, k + 1
 
     def _px4(self, msg: Any) -> None:
-        enc = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
-        self.core.receive_data(bytes(msg.pack(enc)))
+        self.core.receive_data(_packed(msg))
 
     def _setup(self, state: str) -> None:
         if state == "silent":
