@@ -1,6 +1,7 @@
 """The Spiri end to end: `fieldkit vehicle-sim --profile spiri` (the simulated PX4 on a pty) and
 `fieldkit node --profile spiri` flying a script on it, both as the field runs them: processes
-in real time. And the node in this process against PX4 in lockstep, deterministic.
+in real time, the flight recorded and replayed. And the node in this process against PX4 in
+lockstep, deterministic.
 
 Nothing waits on time: a test reads output until what it waits for shows (with a deadline as
 a hang guard only), then stops the processes by signal.
@@ -21,8 +22,10 @@ from pathlib import Path
 
 import pytest
 from rigs import SimRig
+from typer.testing import CliRunner
 
 import bvm
+from fieldkit.cli import app
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.node import Node
 from fieldkit.robot.rc import RcCommand
@@ -108,16 +111,17 @@ def px4_sim(tmp_path: Path) -> Iterator[tuple[str, subprocess.Popen[str]]]:
                 proc.wait()
 
 
-def test_fieldkit_node_flies_the_spiri_on_the_simulated_px4(
+def test_fieldkit_node_flies_the_spiri_on_the_simulated_px4_and_the_flight_replays(
     tmp_path: Path, px4_sim: tuple[str, subprocess.Popen[str]]
 ) -> None:
     path, sim = px4_sim
     script = tmp_path / "fly.bzz"
     script.write_text(FLY_NORTH.replace("BROKEN == 1", "0 == 1"))
+    bag = tmp_path / "flight"
     node = subprocess.Popen(
         [sys.executable, "-m", "fieldkit", "node", "--robot-id", "1", "--profile", "spiri",
          "--script", str(script), "--autopilot", path, "--radio", "none",
-         "--command", "0:1:22", "--out", str(tmp_path / "o")],
+         "--command", "0:1:22", "--out", str(tmp_path / "o"), "--record", str(bag)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=_env(),
     )  # fmt: skip
     try:
@@ -152,6 +156,11 @@ def test_fieldkit_node_flies_the_spiri_on_the_simulated_px4(
     assert "mode POSCTL -> OFFBOARD (GCS)" in sim_err and "armed in OFFBOARD" in sim_err
     assert "mode OFFBOARD -> LOITER (GCS)" in sim_err  # the stop
     assert "Failsafe" not in sim_err and "denied" not in sim_err
+    # The flight replays identically: the PX4 link's stream and switch, timed by the link
+    # clock, come out the same (`fieldkit replay --verify`).
+    replay = CliRunner().invoke(app, ["replay", str(bag), "--verify", "--speed", "max"])
+    assert replay.exit_code == 0, replay.output
+    assert replay.stdout.splitlines()[-1].startswith("replay: identical: ")
 
 
 def test_the_node_flies_the_spiri_in_lockstep() -> None:
@@ -185,29 +194,3 @@ def test_the_node_flies_the_spiri_in_lockstep() -> None:
         assert rig.sim.mode == "LOITER" and t.mode == "LOITER"  # the spiri's hold: PX4's own
         assert not rig.link.streaming and not rig.link.pilot_override
         assert summary["mavlink_bad_frames"] == 0 and rig.sim.failsafe is None
-
-
-def test_a_spiri_flight_records_and_replays_identically(tmp_path: Path) -> None:
-    """`fieldkit node --record` on the simulated PX4, then `fieldkit replay --verify`: the PX4
-    link's stream and switch (timed by the link clock) come out the same in the replay."""
-    from rigs import pty_vehicle
-    from typer.testing import CliRunner
-
-    from fieldkit.cli import app
-
-    runner = CliRunner()
-    script = tmp_path / "fly.bzz"
-    script.write_text(FLY_NORTH.replace("BROKEN == 1", "0 == 1"))
-    bag = tmp_path / "flight"
-    with pty_vehicle(HOME, profile="spiri") as path:
-        result = runner.invoke(
-            app,
-            ["node", "--robot-id", "1", "--profile", "spiri", "--script", str(script),
-             "--autopilot", path, "--radio", "none", "--seconds", "4", "--seed", "5",
-             "--command", "0:1:22", "--record", str(bag)],
-        )  # fmt: skip
-        assert result.exit_code == 0, result.output
-        assert "autopilot: takeoff 3: done" in result.stdout  # the stream, the switch, the arm
-        result = runner.invoke(app, ["replay", str(bag), "--verify", "--speed", "max"])
-    assert result.exit_code == 0, result.output
-    assert result.stdout.splitlines()[-1].startswith("replay: identical: ")
