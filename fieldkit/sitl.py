@@ -55,7 +55,7 @@ from fieldkit.update.operator import GROUND_ID, OperatorSession
 from fieldkit.update.release import Release
 from fieldkit.vehicle.pty import PtyPair, open_pty
 from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME
-from fieldkit.vehicle.sim.vehicle import SimVehicle
+from fieldkit.vehicle.sim.vehicle import SimVehicle, open_sim_vehicle
 
 #: Where robot i's XBee serial numbers start (Digi's OUI prefix, as real modules have).
 SERIAL_BASE = 0x0013A20000000000
@@ -280,7 +280,7 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
             rid = k + 1
             ap, radio = open_pty(), open_pty()
             # The GPS fix is held back until every node is up (see the loop below).
-            vehicle = SimVehicle(
+            vehicle = open_sim_vehicle(
                 cfg.profile,
                 ap.master,
                 home=home,

@@ -426,7 +426,7 @@ def _flight(rig: MemoryRig | SimRig) -> list[tuple[str, str]]:
     return [(e.kind, e.text) for e in rig.link.drain_events() if e.kind != "link"]
 
 
-@pytest.mark.parametrize("profile", ["solo", "husky"])
+@pytest.mark.parametrize("profile", ["solo", "husky", "spiri"])
 def test_memory_rig_and_pty_rig_put_the_same_bytes_on_the_line(profile: str) -> None:
     """The cores without a port and the transports on a pty exchange the same bytes both
     ways, frame for frame, and the link sees the same flight."""

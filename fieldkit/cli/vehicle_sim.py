@@ -1,4 +1,7 @@
-"""`fieldkit vehicle-sim`: a simulated ArduPilot vehicle on a pty, a serial port or a URL.
+"""`fieldkit vehicle-sim`: a simulated autopilot on a pty, a serial port or a URL.
+
+The profile's `autopilot.flavour` picks the machine: PX4 for "px4" (the Spiri), ArduPilot
+(Copter, or Rover for a ground profile) otherwise.
 
     fieldkit vehicle-sim --profile solo                      # prints a pty path: open it
     fieldkit vehicle-sim --profile husky --port ttySIM       # ./ttySIM -> the pty
@@ -73,11 +76,11 @@ def vehicle_sim_cmd(
     ] = 0.0,
     sysid: Annotated[int, typer.Option("--sysid", help="MAVLink system id.")] = 1,
 ) -> None:
-    """Run a simulated ArduPilot vehicle (Copter, or Rover for a ground profile)."""
+    """Run a simulated autopilot: PX4 for a px4 profile, else ArduPilot (Copter or Rover)."""
     # Imported here: pymavlink is slow to import, and every fieldkit command loads this file.
     from fieldkit.vehicle.pty import open_pty
     from fieldkit.vehicle.sim.ardupilot import VehicleSimError
-    from fieldkit.vehicle.sim.vehicle import SimVehicle
+    from fieldkit.vehicle.sim.vehicle import open_sim_vehicle
 
     home_ll = parse_home(home)
     try:
@@ -114,7 +117,7 @@ def vehicle_sim_cmd(
         else:
             device = port
         try:
-            sim = SimVehicle(
+            sim = open_sim_vehicle(
                 prof,
                 device,
                 home=home_ll,
@@ -149,7 +152,7 @@ def _serve(
     if pty is not None:
         # First line on stdout: the path alone, for scripts (`read PORT < <(...)`).
         print(os.path.abspath(link) if link is not None else pty.slave_path, flush=True)
-    kind = "ArduPilot Rover" if sim.ground else "ArduCopter"
+    kind = sim.kind
     where = pty.slave_path if pty is not None else port
     typer.echo(
         f"vehicle-sim: {name} ({kind}, system {sim.sysid}) at {home[0]},{home[1]} on {where}; "

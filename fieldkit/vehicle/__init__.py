@@ -6,8 +6,12 @@
   a serial device that vanishes is closed and reopened at `reopen.ReopenPolicy`'s pace;
 - `mavlink`: the codec and `FrameReader`, the resynchronising MAVLink parser;
 - `pty`: `open_pty` and `PtyPair`, the line between a simulated machine and its driver;
+- `px4.Px4Core` / `link.Px4Autopilot`: PX4's conversation (custom modes, the OFFBOARD
+  setpoint stream, its failsafes) without I/O / on a pymavlink connection;
 - `sim.ardupilot.SimArduPilot` / `sim.vehicle.SimVehicle`: a vehicle that answers like
-  ArduCopter or ArduPilot Rover, without I/O / on a port (real time for `fieldkit vehicle-sim`).
+  ArduCopter or ArduPilot Rover, without I/O / on a port (real time for `fieldkit vehicle-sim`);
+  `sim.px4.SimPx4` / `sim.vehicle.SimPx4Vehicle` the same for PX4; `open_sim_vehicle` picks
+  one by the profile's flavour.
 
 The names below are loaded on first use: pymavlink takes half a second to import, and a caller
 that wants only a pty should not pay for it.
@@ -27,11 +31,13 @@ if TYPE_CHECKING:
         Event,
         MavCommand,
     )
-    from fieldkit.vehicle.link import Autopilot
+    from fieldkit.vehicle.link import Autopilot, Px4Autopilot
     from fieldkit.vehicle.mavlink import FrameReader
     from fieldkit.vehicle.pty import PtyPair, open_pty
+    from fieldkit.vehicle.px4 import Px4Core
     from fieldkit.vehicle.sim.ardupilot import SimArduPilot, SimFaults, VehicleSimError
-    from fieldkit.vehicle.sim.vehicle import SimVehicle
+    from fieldkit.vehicle.sim.px4 import SimPx4
+    from fieldkit.vehicle.sim.vehicle import SimPx4Vehicle, SimVehicle, open_sim_vehicle
 
 _WHERE = {
     "Autopilot": "link",
@@ -48,6 +54,11 @@ _WHERE = {
     "SimFaults": "sim.ardupilot",
     "VehicleSimError": "sim.ardupilot",
     "SimVehicle": "sim.vehicle",
+    "Px4Autopilot": "link",
+    "Px4Core": "px4",
+    "SimPx4": "sim.px4",
+    "SimPx4Vehicle": "sim.vehicle",
+    "open_sim_vehicle": "sim.vehicle",
 }
 
 __all__ = [
@@ -65,6 +76,11 @@ __all__ = [
     "AutopilotState",
     "VehicleSimError",
     "open_pty",
+    "Px4Autopilot",
+    "Px4Core",
+    "SimPx4",
+    "SimPx4Vehicle",
+    "open_sim_vehicle",
 ]
 
 

@@ -1,4 +1,8 @@
-"""The autopilot protocol core: MAVLink to an ArduPilot or PX4 autopilot, without I/O.
+"""The autopilot protocol core: MAVLink to an ArduPilot autopilot, without I/O.
+
+PX4 flies otherwise (its own mode numbers, OFFBOARD's setpoint stream): `fieldkit.vehicle.
+px4.Px4Core` is this core with PX4's conversation on top, through a few hooks here (mode
+names, the override text, steps held back until `ready`).
 
 `AutopilotCore` is the node's side of the conversation in the manner of h11: bytes from the
 autopilot go in (`receive_data`), time moves on (`tick`, with the injected `clock`), and the
@@ -51,6 +55,9 @@ FORCE_DISARM = 21196
 """COMPONENT_ARM_DISARM param2 that disarms an ArduPilot vehicle even in the air."""
 RC_UNUSED = (0, 65535)
 """RC channel values that mean "no such channel" in RC_CHANNELS."""
+MAX_ALTITUDE_M = 100_000.0
+"""Setpoint altitudes beyond this many metres from home are refused (not an altitude)."""
+_FLOAT32_MAX = 3.4028234663852886e38
 
 # SET_POSITION_TARGET type_mask: use the position only (ignore velocity, acceleration, yaw
 # rate, and yaw unless given). Bits: 0-2 position, 3-5 velocity, 6-8 acceleration, 10 yaw,
@@ -141,6 +148,11 @@ class _Step:
     ack: int | None  # the MAV_CMD id to await in COMMAND_ACK; None for fire and forget
     on_accept: Callable[[], None] | None = None
     optional: bool = False  # a refusal is a warning, not a failure of the command
+    # Held back (not sent, no attempt counted) until `ready(now)` holds, for at most
+    # `ready_timeout_s`: PX4's OFFBOARD switch waits for its setpoint stream to settle.
+    ready: Callable[[float], bool] | None = None
+    waiting_for: str = ""  # what `ready` waits for, in the failure text
+    ready_timeout_s: float = 10.0
 
 
 class MavCommand:
@@ -168,6 +180,7 @@ class MavCommand:
         self._steps = list(steps)
         self._index = 0
         self._deadline = 0.0
+        self._waiting_since = 0.0  # when the current step began waiting for `ready`
 
     @property
     def done(self) -> bool:
@@ -529,7 +542,7 @@ class AutopilotCore:
         t.last_heartbeat = now
         t.last_message = now
         armed = bool(m.base_mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
-        mode = mavutil.mode_string_v10(m)
+        mode = self._mode_name(m)
         t.mav_type, t.autopilot_type = m.type, m.autopilot
         t.custom_mode, t.system_status = m.custom_mode, m.system_status
         if armed != t.armed:
@@ -539,13 +552,30 @@ class AutopilotCore:
             old, t.mode = t.mode, mode
             self._event("mode", f"mode {old} -> {mode}")
         taken = self._commanded_mode is not None and mode != self._commanded_mode
+        # A heartbeat that overtakes the ACK of the node's own mode change is not a takeover.
+        taken = taken and not self._mode_in_flight(mode)
         if taken and not self.mode_override:
-            self._event(
-                "override",
-                f"mode changed to {mode} without the node (it asked for "
-                f"{self._commanded_mode}): pilot or autopilot failsafe",
-            )
+            self._event("override", self._mode_taken(mode, now))
         self.mode_override = taken
+
+    def _mode_name(self, m: Any) -> str:
+        """The flight mode a HEARTBEAT reports, by pymavlink's name."""
+        return str(mavutil.mode_string_v10(m))
+
+    def _mode_taken(self, mode: str, now: float) -> str:
+        """The mode changed to `mode` without the node: the override event's text (a
+        subclass may also react, e.g. stop a setpoint stream)."""
+        return (
+            f"mode changed to {mode} without the node (it asked for "
+            f"{self._commanded_mode}): pilot or autopilot failsafe"
+        )
+
+    def _mode_in_flight(self, mode: str) -> bool:
+        """Whether the command being sent now is the node's own change to `mode`."""
+        cmd = self._active
+        if cmd is None or cmd._index >= len(cmd._steps):
+            return False
+        return cmd._steps[cmd._index].label == f"mode {mode}"
 
     def _on_global_position(self, m: Any, now: float) -> None:
         t = self.telemetry
@@ -642,8 +672,8 @@ class AutopilotCore:
         if ts not in (0, self.source_system):
             return  # the answer to another GCS's command
         step = cmd._steps[cmd._index]
-        if step.ack is None or m.command != step.ack:
-            return
+        if step.ack is None or m.command != step.ack or cmd.attempts == 0:
+            return  # not ours, or a step still held back (an ACK of an earlier command)
         cmd.result = m.result
         if m.result == mavlink2.MAV_RESULT_ACCEPTED:
             if step.on_accept is not None:
@@ -710,6 +740,20 @@ class AutopilotCore:
                 if not self._start_step(cmd, now):
                     continue
             step = cmd._steps[cmd._index]
+            if cmd.attempts == 0:  # held back until the step is ready
+                if step.ready is None or step.ready(now):
+                    self._send_step(cmd, step, now)
+                    if step.ack is None:
+                        self._next_step(cmd, now)
+                        continue
+                    return
+                waited = now - cmd._waiting_since
+                if waited < step.ready_timeout_s:
+                    return
+                self._step_failed(
+                    cmd, f"{step.label}: {step.waiting_for} not ready after {waited:.1f} s", now
+                )
+                continue
             if now < cmd._deadline:
                 return
             if cmd.attempts < self.max_attempts:
@@ -728,6 +772,9 @@ class AutopilotCore:
         while cmd._index < len(cmd._steps):
             step = cmd._steps[cmd._index]
             cmd.attempts = 0
+            if step.ready is not None and not step.ready(now):
+                cmd._waiting_since = now  # `_advance` sends it once ready
+                return True
             self._send_step(cmd, step, now)
             if step.ack is not None:
                 return True
@@ -795,7 +842,9 @@ class AutopilotCore:
         on_accept: Callable[[], None] | None = None,
         optional: bool = False,
     ) -> _Step:
-        p = [float(x) for x in params][:7]
+        # MAVLink params are float32: a finite value beyond its range saturates to infinity
+        # (which autopilots refuse) rather than fail to pack at send time.
+        p = [_float32(float(x)) for x in params][:7]
         p += [0.0] * (7 - len(p))
 
         def send(confirmation: int) -> None:
@@ -848,25 +897,26 @@ class AutopilotCore:
         return self._new(f"set_mode {name}", [step], on_done)
 
     def _mode_step(self, name: str) -> _Step | str:
-        """The DO_SET_MODE step for a mode name, or why there is none."""
-        px4 = self.flavour == "px4" or self.telemetry.autopilot_type == mavlink2.MAV_AUTOPILOT_PX4
-        if px4:
-            entry = mavutil.px4_map.get(name)
-            if entry is None:
-                known = ", ".join(sorted(mavutil.px4_map))
-                return f"unknown PX4 mode {name!r} (known: {known})"
-            params: tuple[float, ...] = entry
-        else:
-            mav_type = self.telemetry.mav_type
-            if mav_type is None:
-                ground = mavlink2.MAV_TYPE_GROUND_ROVER
-                mav_type = ground if self.ground else mavlink2.MAV_TYPE_QUADROTOR
-            mapping = mavutil.mode_mapping_byname(mav_type)
-            if mapping is None:
-                return f"no ArduPilot mode table for vehicle type {mav_type}"
-            if name not in mapping:
-                return f"unknown mode {name!r} (known: {', '.join(sorted(mapping))})"
-            params = (mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, mapping[name])
+        """The DO_SET_MODE step for an ArduPilot mode name, or why there is none.
+
+        PX4 numbers its modes otherwise and needs a setpoint stream for OFFBOARD: that is
+        `fieldkit.vehicle.px4.Px4Core` (the profile's `autopilot.flavour = "px4"`).
+        """
+        if self.telemetry.autopilot_type == mavlink2.MAV_AUTOPILOT_PX4:
+            return (
+                "the autopilot is PX4 (HEARTBEAT autopilot 12) but this link speaks ArduPilot: "
+                'set autopilot.flavour = "px4" in the profile'
+            )
+        mav_type = self.telemetry.mav_type
+        if mav_type is None:
+            ground = mavlink2.MAV_TYPE_GROUND_ROVER
+            mav_type = ground if self.ground else mavlink2.MAV_TYPE_QUADROTOR
+        mapping = mavutil.mode_mapping_byname(mav_type)
+        if mapping is None:
+            return f"no ArduPilot mode table for vehicle type {mav_type}"
+        if name not in mapping:
+            return f"unknown mode {name!r} (known: {', '.join(sorted(mapping))})"
+        params = (mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, mapping[name])
 
         def accepted() -> None:
             # From now on a different mode in the heartbeat means someone else switched.
@@ -885,7 +935,7 @@ class AutopilotCore:
         if self.ground:
             who = self.profile.name if self.profile is not None else "this vehicle"
             return self._refused(name, f"{who} is a ground robot: it does not fly", on_done)
-        if not (math.isfinite(alt) and alt > 0.0):
+        if not (math.isfinite(alt) and 0.0 < alt <= MAX_ALTITUDE_M):
             return self._refused(name, f"altitude must be > 0 m, got {alt}", on_done)
         mode = self._mode_step(self.guided_mode)
         if isinstance(mode, str):
@@ -946,6 +996,8 @@ class AutopilotCore:
             return self._refused(name, "non-finite coordinates", on_done)
         if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
             return self._refused(name, "latitude or longitude out of range", on_done)
+        if abs(alt) > MAX_ALTITUDE_M:
+            return self._refused(name, f"altitude beyond {MAX_ALTITUDE_M:g} m", on_done)
         if self.target_system is None:
             return self._refused(name, "no heartbeat from the autopilot yet", on_done)
         if self.ground:
@@ -972,11 +1024,22 @@ class AutopilotCore:
             0.0,
         )
         self.last_target = (lat, lon, alt)
+        # Setpoints stream at the loop rate: finish quietly, no event per setpoint.
+        return self._over_at_once(name, on_done)
+
+    def _over_at_once(
+        self,
+        name: str,
+        on_done: Callable[[MavCommand], None] | None,
+        error: str | None = None,
+    ) -> MavCommand:
+        """A command finished as it is made, without an event: a setpoint sent (done), or,
+        with `error`, one refused again and again at the loop rate (failed)."""
         cmd = MavCommand(self._next_id, name, (), self._clock(), on_done)
         self._next_id += 1
-        # Setpoints stream at the loop rate: finish quietly, no event per setpoint.
-        cmd.status = CommandStatus.DONE
-        cmd.attempts = 1
+        cmd.status = CommandStatus.DONE if error is None else CommandStatus.FAILED
+        cmd.error = error
+        cmd.attempts = 1 if error is None else 0
         cmd.finished = cmd.created
         if on_done is not None:
             on_done(cmd)
@@ -1001,14 +1064,18 @@ class AutopilotCore:
                 1,
             )
 
-        steps = [_Step("REQUEST_DATA_STREAM", legacy, None)]
+        steps = [_Step("REQUEST_DATA_STREAM", legacy, None), *self._interval_steps(rate_hz)]
+        return self._new(f"request_streams {rate_hz:g} Hz", steps, on_done)
+
+    def _interval_steps(self, rate_hz: float) -> list[_Step]:
+        """SET_MESSAGE_INTERVAL for every message used, at `rate_hz` (home slower); optional."""
         interval_us = 1e6 / rate_hz
-        for msg_id in _STREAMED:
-            steps.append(
-                self._long_step(
-                    mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, (msg_id, interval_us), optional=True
-                )
+        steps = [
+            self._long_step(
+                mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, (msg_id, interval_us), optional=True
             )
+            for msg_id in _STREAMED
+        ]
         home_us = 1e6 / min(rate_hz, _HOME_RATE_HZ)
         steps.append(
             self._long_step(
@@ -1017,7 +1084,12 @@ class AutopilotCore:
                 optional=True,
             )
         )
-        return self._new(f"request_streams {rate_hz:g} Hz", steps, on_done)
+        return steps
+
+
+def _float32(x: float) -> float:
+    """`x` as MAVLink's float32 can carry it: beyond its range, infinity of the same sign."""
+    return math.copysign(math.inf, x) if math.isfinite(x) and abs(x) > _FLOAT32_MAX else x
 
 
 def _on_earth(lat_e7: int, lon_e7: int) -> bool:

@@ -54,6 +54,7 @@ from fieldkit.vehicle.autopilot import (
     describe_error,
 )
 from fieldkit.vehicle.mavlink import adopt_codec
+from fieldkit.vehicle.px4 import Px4Core
 from fieldkit.vehicle.reopen import DEFAULT_INTERVAL_S, ReopenPolicy
 
 # A single poll reads at most this much, so that a flooded line cannot starve the loop.
@@ -113,11 +114,14 @@ class Autopilot(AutopilotCore):
 
     @classmethod
     def from_profile(cls, profile: Profile, url: str | None = None, **kwargs: Any) -> Autopilot:
-        """A link as the profile says (`autopilot.url`, `autopilot.baud`), or to `url`."""
+        """A link as the profile says (`autopilot.url`, `autopilot.baud`), or to `url`; the
+        core by `autopilot.flavour` (px4: `Px4Autopilot`, PX4's OFFBOARD conversation)."""
         if profile.autopilot.flavour == "dji":
             raise AutopilotError(
                 f"{profile.name}: the DJI Onboard SDK does not speak MAVLink (flavour dji)"
             )
+        if profile.autopilot.flavour == "px4" and cls is Autopilot:
+            cls = Px4Autopilot
         return cls(
             url if url is not None else profile.autopilot.url,
             baud=profile.autopilot.baud,
@@ -373,3 +377,8 @@ def _port_reason(what: str, e: BaseException) -> str:
     if "returned no data" in str(e):
         return f"{what}: end of file, device disconnected"
     return f"{what}: {describe_error(e)}"
+
+
+class Px4Autopilot(Autopilot, Px4Core):
+    """The node's MAVLink link to PX4: `Px4Core` (OFFBOARD setpoint stream, PX4 modes) on a
+    pymavlink connection; the port is `Autopilot`'s, the conversation `Px4Core`'s."""

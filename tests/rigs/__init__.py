@@ -4,6 +4,9 @@
 - `MemoryRig`: the same pair as protocol cores (`SimArduPilot`, `AutopilotCore`) passing bytes
   in memory: no port, no kernel, no waiting.
 
+A px4 profile (the Spiri) gets PX4's pair: `SimPx4Vehicle` and `Px4Autopilot`, `SimPx4` and
+`Px4Core`.
+
 Both step the vehicle and the link in lockstep on a simulated clock, in the same order, so the
 same scenario gives the same bytes through either.
 """
@@ -20,10 +23,12 @@ from typing import Any
 
 from fieldkit.robot.profiles import Profile, load_profile
 from fieldkit.vehicle.autopilot import AutopilotCore
-from fieldkit.vehicle.link import Autopilot
+from fieldkit.vehicle.link import Autopilot, Px4Autopilot
 from fieldkit.vehicle.pty import open_pty
+from fieldkit.vehicle.px4 import Px4Core
 from fieldkit.vehicle.sim.ardupilot import SimArduPilot
-from fieldkit.vehicle.sim.vehicle import SimVehicle
+from fieldkit.vehicle.sim.px4 import SimPx4
+from fieldkit.vehicle.sim.vehicle import open_sim_vehicle
 
 #: Where the rigs' vehicles start (the `rig` fixture's home).
 RIG_HOME = (45.5049, -73.6133)
@@ -83,8 +88,9 @@ class SimRig(_SteppedRig):
         self.sync_timeout_s = sync_timeout_s
         self.pty = open_pty()
         try:
-            self.sim = SimVehicle(self.profile, self.pty.master, **sim_options)
-            self.link = Autopilot(
+            self.sim = open_sim_vehicle(self.profile, self.pty.master, **sim_options)
+            px4 = self.profile.autopilot.flavour == "px4"
+            self.link = (Px4Autopilot if px4 else Autopilot)(
                 self.pty.slave_path,
                 profile=self.profile,
                 clock=self.clock,
@@ -157,8 +163,11 @@ class MemoryRig(_SteppedRig):
         self.profile = load_profile(profile) if isinstance(profile, str) else profile
         self.dt = dt
         self.now = 0.0
-        self.sim = SimArduPilot(self.profile, **sim_options)
-        self.link = AutopilotCore(profile=self.profile, clock=self.clock, **(link_options or {}))
+        px4 = self.profile.autopilot.flavour == "px4"
+        self.sim: SimArduPilot = (SimPx4 if px4 else SimArduPilot)(self.profile, **sim_options)
+        self.link: AutopilotCore = (Px4Core if px4 else AutopilotCore)(
+            profile=self.profile, clock=self.clock, **(link_options or {})
+        )
 
     def tick(self) -> None:
         """One step of the vehicle and one tick of the link, every byte delivered both ways."""
@@ -202,7 +211,9 @@ def pty_vehicle(
     seconds), stepped in real time by a thread (as `fieldkit vehicle-sim` runs it): yields
     the pty's path, for a `fieldkit node` to open."""
     pty = open_pty()
-    sim = SimVehicle(load_profile(profile), pty.master, home=home, gps_fix_delay_s=gps_fix_delay_s)
+    sim = open_sim_vehicle(
+        load_profile(profile), pty.master, home=home, gps_fix_delay_s=gps_fix_delay_s
+    )
     stop = threading.Event()
     thread = threading.Thread(target=sim.run, args=(50.0, stop), daemon=True)
     thread.start()

@@ -235,6 +235,11 @@ class SimArduPilot:
     # ------------------------------------------------------------------ views
 
     @property
+    def kind(self) -> str:
+        """What it simulates, for a log line: "ArduCopter" or "ArduPilot Rover"."""
+        return "ArduPilot Rover" if self.ground else "ArduCopter"
+
+    @property
     def armed(self) -> bool:
         """Whether the motors are armed."""
         return self.vehicle.armed
@@ -296,8 +301,12 @@ class SimArduPilot:
         was = v.status
         v.step(dt)
         if was == LANDING and v.status == ON_GROUND:
-            self._note("touchdown: disarmed")
+            self._touchdown()
         self._emit()
+
+    def _touchdown(self) -> None:
+        """A landing just ended on the ground (the kinematics disarmed: ArduPilot's way)."""
+        self._note("touchdown: disarmed")
 
     # ------------------------------------------------------------------ bytes in and out
 

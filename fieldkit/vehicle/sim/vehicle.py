@@ -27,6 +27,7 @@ from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.autopilot import describe_error
 from fieldkit.vehicle.mavlink import adopt_codec
 from fieldkit.vehicle.sim.ardupilot import SimArduPilot, SimOptions, VehicleSimError
+from fieldkit.vehicle.sim.px4 import SimPx4
 
 
 class _FdPort:
@@ -192,3 +193,16 @@ class SimVehicle(SimArduPilot):
         sent = self.port.write(frame)
         self.bytes_sent += sent
         self.bytes_dropped += len(frame) - sent
+
+
+class SimPx4Vehicle(SimVehicle, SimPx4):
+    """A simulated PX4 (`SimPx4`) on a line: the port is `SimVehicle`'s, the rest PX4's."""
+
+
+def open_sim_vehicle(
+    profile: Profile, device: str | int, *, baud: int = 57600, **options: Unpack[SimOptions]
+) -> SimVehicle:
+    """The simulated machine the profile's `autopilot.flavour` names, talking on `device`:
+    PX4 for "px4", ArduPilot (Copter, or Rover for a ground profile) otherwise."""
+    cls = SimPx4Vehicle if profile.autopilot.flavour == "px4" else SimVehicle
+    return cls(profile, device, baud=baud, **options)
