@@ -264,6 +264,7 @@ class DjiCore:
         self.frames_sent = 0
         self.stream_frames = 0  # movement-control frames sent
         self.unhandled_frames = 0  # good frames of no use here (other pushes, stray ACKs)
+        self.malformed = 0  # good frames whose value does not hold what it says
 
         # Sequence numbers: one counter for every command frame (spec §4.3).
         self._seq = 0
@@ -444,7 +445,12 @@ class DjiCore:
             return
         key = (frame.cmd_set, frame.cmd_id)
         if key == M.PUSH_BROADCAST:
-            self._on_broadcast(M.parse_broadcast(frame.value), now)
+            try:
+                broadcast = M.parse_broadcast(frame.value)
+            except ValueError:
+                self.malformed += 1  # its flag promises items the frame does not hold
+                return
+            self._on_broadcast(broadcast, now)
         elif key == M.PUSH_LOST_CONTROL:
             if frame.session >= 1:
                 cipher = self._cipher if frame.enc else None
