@@ -44,6 +44,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import Enum
+from typing import TYPE_CHECKING
 
 from fieldkit.robot import geo
 from fieldkit.robot.profiles import DjiSettings, Profile
@@ -58,6 +59,9 @@ from fieldkit.vehicle.autopilot import (
 from fieldkit.vehicle.dji import messages as M
 from fieldkit.vehicle.dji.crypto import FrameCipher
 from fieldkit.vehicle.dji.frame import Frame, FrameReader, ack_frame, command_frame
+
+if TYPE_CHECKING:
+    from fieldkit.vehicle.core import VehicleCore
 
 MAX_CONTROL_RATE_HZ = 50.0
 """Movement-control frames per second at most: DJI's recommended rate, the most the FC reads."""
@@ -1371,6 +1375,13 @@ def _code_is(
         return f"{what} refused: {shown}"
 
     return check
+
+
+if TYPE_CHECKING:
+
+    def _is_a_vehicle_core(core: DjiCore) -> VehicleCore:
+        """mypy checks here that DjiCore serves the one vehicle interface."""
+        return core
 
 
 __all__ = ["DjiCommand", "DjiCore", "DjiError"]
