@@ -400,3 +400,41 @@ def test_the_profile_dji_table() -> None:
         parse_profile(solo, "s.toml")
     core = DjiCore(app_id=1, app_key=TEST_APP_KEY, profile=m100, broadcast_hz=10, encrypt=False)
     assert core.broadcast_hz == 10 and not core.encrypt
+
+
+def test_a_restarted_flight_controller_is_activated_again() -> None:
+    rig = DjiMemoryRig()
+    rig.connect()
+    # The FC restarts on the ground: it forgets the activation and the host's control.
+    rig.sim.activated = rig.sim.authority = False
+    rig.sim.device = M.DEVICE_RC
+    arm = finish(rig, rig.core.arm())
+    assert "0xFF01 NO_AUTHORIZATION" in (arm.error or "")
+    assert rig.run_until(lambda: rig.sim.activated, 3.0)
+    assert ("activation", "the flight controller says it is not activated (restarted?): "
+            "activating again") in texts(rig)  # fmt: skip
+    assert finish(rig, rig.core.arm()).ok and rig.sim.authority
+
+
+def test_after_a_silence_the_connection_is_checked_again() -> None:
+    rig = DjiMemoryRig()
+    rig.connect()
+    versions = rig.sim.received[M.CMD_GET_VERSION]
+    rig.sim.faults.silent = True
+    rig.run_for(4.0)
+    rig.sim.faults.silent = False
+    rig.run_for(1.0)
+    assert rig.sim.received[M.CMD_GET_VERSION] == versions + 1 and rig.core.activated
+
+
+def test_a_flight_controller_back_from_a_restart_is_not_a_pilot_override() -> None:
+    rig = DjiMemoryRig()
+    rig.connect()
+    rig.sim.faults.silent = True
+    rig.run_for(4.0)
+    rig.sim.activated = rig.sim.authority = False  # it restarted meanwhile
+    rig.sim.device = M.DEVICE_RC
+    rig.sim.faults.silent = False
+    assert rig.run_until(lambda: rig.sim.activated, 3.0)
+    assert not rig.core.pilot_override and not rig.core.authority
+    assert finish(rig, rig.core.arm()).ok and rig.sim.authority

@@ -359,6 +359,9 @@ class DjiCore:
             elif age <= self.heartbeat_timeout_s and self._hb_lost:
                 self._hb_lost = False
                 self._event("heartbeat", "flight controller heard again")
+                # It may have restarted meanwhile: the version's code says whether it is
+                # still activated, and activating again is harmless.
+                self._reconnect()
         self._advance(now)
         self.stream(now)
 
@@ -638,7 +641,14 @@ class DjiCore:
         self._setpoint = None
         had = self.authority
         self.authority = False
-        if had:
+        if had and self._hb_lost and not self._switch_off_f:
+            # Heard again after a silence, with the switch in F: the flight controller
+            # restarted (or the line was cut), not the pilot. Asked for again at the next order.
+            self._event(
+                "authority",
+                f"control authority lost while the flight controller was silent ({reason})",
+            )
+        elif had:
             self._pilot_took = True
             self._event(
                 "override",
@@ -746,6 +756,11 @@ class DjiCore:
         self._next_id += 1
         self._connect = cmd
         self._queue.appendleft(cmd)
+
+    def _reconnect(self) -> None:
+        """Run the connection sequence again (unless it is running or activation was refused)."""
+        if self._connect is None and self.activation_error is None:
+            self._connect_at = self._clock()
 
     def _activation_request(self) -> tuple[tuple[int, int], bytes]:
         word = self.version.firmware_word if self.version is not None else M.M100_FIRMWARE
@@ -1080,6 +1095,14 @@ class DjiCore:
     def _refusal(self, what: str, code: int | None, table: Mapping[int, str]) -> str:
         if code is None:
             return f"{what}: answer without a return code"
+        if code == M.NO_AUTHORIZATION and self.activated:
+            self._event(
+                "activation",
+                "the flight controller says it is not activated (restarted?): activating again",
+            )
+            self.activated = False
+            self.authority = False
+            self._reconnect()
         if code == M.KEY_ERROR:
             self.key_rejected = True
             self._event(
