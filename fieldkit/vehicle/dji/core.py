@@ -216,7 +216,7 @@ class DjiCore:
         queue_timeout_s: float = 10.0,
         heartbeat_timeout_s: float | None = None,
     ) -> None:
-        """A core that has heard nothing yet; the connection sequence starts at once.
+        """A core that has heard nothing yet; the connection sequence starts at the first tick.
 
         `app_id` and `app_key` (64 hex digits) are the developer's, from the node's config:
         never from a profile. `profile` gives the heartbeat (silence) timeout, whether it
@@ -226,7 +226,7 @@ class DjiCore:
         """
         s = profile.dji if profile is not None else DjiSettings()
         try:
-            self._cipher: FrameCipher | None = FrameCipher.from_app_key(app_key)
+            self._cipher = FrameCipher.from_app_key(app_key)
         except ValueError as e:
             raise DjiError(str(e)) from None
         if not 0 < app_id <= 0xFFFFFFFF:
