@@ -43,8 +43,8 @@ if TYPE_CHECKING:
     from fieldkit.robot.rc import RcCommand
     from fieldkit.update.keys import RobotKeys
     from fieldkit.update.store import Committed, VersionStore
-    from fieldkit.vehicle.autopilot import MavCommand
-    from fieldkit.vehicle.link import Autopilot
+    from fieldkit.vehicle.core import VehicleCommand
+    from fieldkit.vehicle.links import VehicleLink
 
 
 def robot_id_from(profile: Profile, given: int | None) -> int:
@@ -552,7 +552,7 @@ def _run(
     from fieldkit.node.service import NodeService, ServiceSignals
     from fieldkit.record.bag import BagError
     from fieldkit.vehicle.autopilot import AutopilotError
-    from fieldkit.vehicle.link import Autopilot
+    from fieldkit.vehicle.links import open_link
 
     # One time for the node and its autopilot core, frozen for each tick: a tick's decisions
     # (heartbeats, retries, commands due) then depend on its recorded time alone.
@@ -560,7 +560,7 @@ def _run(
     notifier = Notifier()
     with _logging_to(say):
         try:
-            link = Autopilot.from_profile(prof, autopilot, clock=tick_clock.now)
+            link = open_link(prof, autopilot, clock=tick_clock.now)
         except AutopilotError as e:
             raise fail(e) from None
         recording = (
@@ -665,7 +665,7 @@ RESTART_MARGIN_S = 30.0
 STREAMS_SETTLE_S = 5.0
 
 
-def _settle(link: Autopilot, streams: MavCommand, say: NodeLog) -> None:
+def _settle(link: VehicleLink, streams: VehicleCommand, say: NodeLog) -> None:
     """Start the loop with no command in flight: the stream requests answered (or given up
     on), so that a recording's first tick does not depend on how far they had got."""
     from fieldkit.vehicle.autopilot import AutopilotError

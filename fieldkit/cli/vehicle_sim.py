@@ -1,11 +1,14 @@
-"""`fieldkit vehicle-sim`: a simulated autopilot on a pty, a serial port or a URL.
-
-The profile's `autopilot.flavour` picks the machine: PX4 for "px4" (the Spiri), ArduPilot
-(Copter, or Rover for a ground profile) otherwise.
+"""`fieldkit vehicle-sim`: a simulated vehicle on a pty, a serial port or a URL.
 
     fieldkit vehicle-sim --profile solo                      # prints a pty path: open it
     fieldkit vehicle-sim --profile husky --port ttySIM       # ./ttySIM -> the pty
     fieldkit vehicle-sim --profile solo --port tcpin:0.0.0.0:5760 --home 45.5,-73.6
+    fieldkit vehicle-sim --profile m100 --port auto          # a DJI M100 flight controller
+
+The profile's `autopilot.flavour` picks the machine: ArduPilot (Copter or Rover) or PX4 (the
+Spiri) speaking MAVLink, or for "dji" an M100 flight controller speaking DJI's OPEN protocol
+(`fieldkit.vehicle.sim.dji`), which accepts only the app id `--app-id` and the app key
+`--app-key` (by default the test pair the tests use; never a real key on a command line).
 
 With `--port auto` (the default) or any bare name, a pseudo-terminal is created and its path
 is the first line on stdout, for the node (`autopilot.url`) to open; a bare name other than
@@ -23,7 +26,7 @@ import signal
 import sys
 import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Protocol
 
 import typer
 
@@ -32,8 +35,18 @@ from fieldkit.cli.options import parse_home
 from fieldkit.robot.profiles import ProfileError, load_profile
 
 if TYPE_CHECKING:
+    from fieldkit.robot.profiles import Profile
     from fieldkit.vehicle.pty import PtyPair
-    from fieldkit.vehicle.sim.vehicle import SimVehicle
+
+
+class _Machine(Protocol):
+    """What `_serve` runs: a simulated machine on its line."""
+
+    def run(self, rate_hz: float, stop: threading.Event) -> None:
+        """Step in real time until `stop` is set."""
+
+    def close(self) -> None:
+        """Close the line it opened."""
 
 
 def _is_pty_request(port: str) -> bool:
@@ -61,7 +74,13 @@ def vehicle_sim_cmd(
             "Montreal, 45.5017,-73.5673, geo.DEFAULT_HOME).",
         ),
     ] = None,
-    baud: Annotated[int, typer.Option("--baud", help="Serial speed for a device path.")] = 57600,
+    baud: Annotated[
+        int | None,
+        typer.Option(
+            "--baud",
+            help="Serial speed for a device path [default: 57600; the profile's for DJI].",
+        ),
+    ] = None,
     rate: Annotated[float, typer.Option("--rate", help="Physics steps per second.")] = 50.0,
     gps_delay: Annotated[
         float, typer.Option("--gps-delay", help="Seconds from boot to a 3D GPS fix.")
@@ -75,12 +94,24 @@ def vehicle_sim_cmd(
         ),
     ] = 0.0,
     sysid: Annotated[int, typer.Option("--sysid", help="MAVLink system id.")] = 1,
+    app_id: Annotated[
+        int | None,
+        typer.Option("--app-id", help="DJI only: the app id it accepts [default: the test id]."),
+    ] = None,
+    app_key: Annotated[
+        str | None,
+        typer.Option(
+            "--app-key",
+            help="DJI only: the app key (64 hex digits) it decrypts with [default: the test key].",
+        ),
+    ] = None,
+    rc_mode: Annotated[
+        str, typer.Option("--rc-mode", help="DJI only: the RC mode switch at start, P, A or F.")
+    ] = "F",
 ) -> None:
-    """Run a simulated autopilot: PX4 for a px4 profile, else ArduPilot (Copter or Rover)."""
+    """Run a simulated vehicle: ArduPilot (Copter, Rover), or a DJI M100 for flavour dji."""
     # Imported here: pymavlink is slow to import, and every fieldkit command loads this file.
     from fieldkit.vehicle.pty import open_pty
-    from fieldkit.vehicle.sim.ardupilot import VehicleSimError
-    from fieldkit.vehicle.sim.vehicle import open_sim_vehicle
 
     home_ll = parse_home(home)
     try:
@@ -95,6 +126,14 @@ def vehicle_sim_cmd(
         raise fail(f"--stream-hz must be >= 0, got {stream_hz}")
     if not 1 <= sysid <= 255:
         raise fail(f"--sysid must be in 1..255, got {sysid}")
+    dji = prof.autopilot.flavour == "dji"
+    if not dji and (app_id is not None or app_key is not None):
+        raise fail(
+            f"--app-id and --app-key are for DJI profiles; {prof.name} speaks MAVLink "
+            f"(autopilot.flavour {prof.autopilot.flavour})"
+        )
+    if rc_mode not in ("P", "A", "F"):
+        raise fail(f"--rc-mode must be P, A or F, got {rc_mode!r}")
 
     pty: PtyPair | None = None
     link: Path | None = None  # set once we have made it: only then is it ours to remove
@@ -116,19 +155,15 @@ def vehicle_sim_cmd(
                 link = wanted
         else:
             device = port
-        try:
-            sim = open_sim_vehicle(
-                prof,
-                device,
-                home=home_ll,
-                baud=baud,
-                sysid=sysid,
-                gps_fix_delay_s=gps_delay,
-                default_rate_hz=stream_hz,
+        if dji:
+            sim, banner = _dji_machine(
+                prof, device, home_ll, baud, gps_delay, stream_hz, app_id, app_key, rc_mode
             )
-        except VehicleSimError as e:
-            raise fail(e) from None
-        _serve(sim, prof.name, home_ll, port, pty, link, rate)
+        else:
+            sim, banner = _ardupilot_machine(
+                prof, device, home_ll, baud, gps_delay, stream_hz, sysid
+            )
+        _serve(sim, banner, home_ll, port, pty, link, rate)
     finally:
         if link is not None:
             try:
@@ -139,8 +174,81 @@ def vehicle_sim_cmd(
             pty.close()
 
 
+def _ardupilot_machine(
+    prof: Profile,
+    device: str | int,
+    home: tuple[float, float],
+    baud: int | None,
+    gps_delay: float,
+    stream_hz: float,
+    sysid: int,
+) -> tuple[_Machine, str]:
+    """The simulated MAVLink autopilot (ArduPilot, or PX4 for flavour px4) on its line, and
+    its banner's description."""
+    from fieldkit.vehicle.sim.ardupilot import VehicleSimError
+    from fieldkit.vehicle.sim.vehicle import open_sim_vehicle
+
+    try:
+        sim = open_sim_vehicle(
+            prof,
+            device,
+            home=home,
+            baud=baud if baud is not None else 57600,
+            sysid=sysid,
+            gps_fix_delay_s=gps_delay,
+            default_rate_hz=stream_hz,
+        )
+    except VehicleSimError as e:
+        raise fail(e) from None
+    return sim, f"{prof.name} ({sim.kind}, system {sim.sysid})"
+
+
+def _dji_machine(
+    prof: Profile,
+    device: str | int,
+    home: tuple[float, float],
+    baud: int | None,
+    gps_delay: float,
+    stream_hz: float,
+    app_id: int | None,
+    app_key: str | None,
+    rc_mode: str,
+) -> tuple[_Machine, str]:
+    """The simulated M100 flight controller on its line, and its banner's description."""
+    from fieldkit.vehicle.dji.crypto import AppKeyError, parse_app_key
+    from fieldkit.vehicle.sim.dji import TEST_APP_ID, TEST_APP_KEY, SimM100Error
+    from fieldkit.vehicle.sim.dji_vehicle import SimM100Vehicle
+
+    if app_id is not None and not 0 < app_id <= 0xFFFFFFFF:
+        raise fail(f"--app-id must be a positive 32-bit number, got {app_id}")
+    if app_key is not None:
+        try:
+            parse_app_key(app_key)
+        except AppKeyError as e:
+            raise fail(f"--app-key: {e}") from None
+    try:
+        sim = SimM100Vehicle(
+            prof,
+            device,
+            baud=baud if baud is not None else prof.autopilot.baud,
+            app_id=app_id if app_id is not None else TEST_APP_ID,
+            app_key=app_key if app_key is not None else TEST_APP_KEY,
+            home=home,
+            gps_fix_delay_s=gps_delay,
+            broadcast_hz=stream_hz if stream_hz > 0 else None,
+            rc_mode=rc_mode,
+        )
+    except SimM100Error as e:
+        raise fail(e) from None
+    key = "the test key" if app_key is None else "the given key"
+    return sim, (
+        f"{prof.name} (DJI M100 flight controller, OPEN protocol; app id {sim.app_id}, {key}; "
+        f"RC mode switch {rc_mode})"
+    )
+
+
 def _serve(
-    sim: SimVehicle,
+    sim: _Machine,
     name: str,
     home: tuple[float, float],
     port: str,
@@ -152,13 +260,8 @@ def _serve(
     if pty is not None:
         # First line on stdout: the path alone, for scripts (`read PORT < <(...)`).
         print(os.path.abspath(link) if link is not None else pty.slave_path, flush=True)
-    kind = sim.kind
     where = pty.slave_path if pty is not None else port
-    typer.echo(
-        f"vehicle-sim: {name} ({kind}, system {sim.sysid}) at {home[0]},{home[1]} on {where}; "
-        "Ctrl-C to stop",
-        err=True,
-    )
+    typer.echo(f"vehicle-sim: {name} at {home[0]},{home[1]} on {where}; Ctrl-C to stop", err=True)
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("vehicle-sim: %(message)s"))
     logger = logging.getLogger("fieldkit.vehicle_sim")

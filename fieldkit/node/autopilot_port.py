@@ -1,5 +1,5 @@
-"""The field node's view of its autopilot: `fieldkit.vehicle.link.Autopilot` as telemetry
-snapshots in, supervisor orders out."""
+"""The field node's view of its autopilot: a `fieldkit.vehicle.links.VehicleLink` (the MAVLink
+`Autopilot`, the DJI `DjiLink`) as telemetry snapshots in, supervisor orders out."""
 
 from __future__ import annotations
 
@@ -10,15 +10,15 @@ from fieldkit.robot import geo
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import FLIGHT_STATUSES, IN_AIR, ON_GROUND, FlightStatus
 from fieldkit.robot.vehicle import Telemetry
-from fieldkit.vehicle.link import Autopilot
+from fieldkit.vehicle.links import VehicleLink
 
 _log = logging.getLogger("fieldkit.node")
 
 
 class MavlinkAutopilot:
-    """Adapts a MAVLink `Autopilot` link to the node's `AutopilotPort`."""
+    """Adapts a vehicle link (MAVLink or DJI) to the node's `AutopilotPort`."""
 
-    def __init__(self, link: Autopilot, home: tuple[float, float, float]) -> None:
+    def __init__(self, link: VehicleLink, home: tuple[float, float, float]) -> None:
         self.link = link
         self.home = home  # where the node's frame starts: used until the first position
 

@@ -110,6 +110,23 @@ class AutopilotSettings:
     gps_fix_timeout_s: float
 
 
+DJI_BROADCAST_RATES: tuple[int, ...] = (1, 10, 50, 100)
+"""Allowed `dji.broadcast_hz`: the rates the M100's set-broadcast-frequency command knows."""
+
+
+@dataclass(frozen=True)
+class DjiSettings:
+    """`[dji]`: the DJI Onboard SDK link's settings that are not secret (flavour "dji").
+
+    The app id and app key are the developer's and come from the node's config, never from
+    a profile (docs/vehicles.md#dji-onboard-sdk-matrice-100).
+    """
+
+    broadcast_hz: int = 50  # telemetry items asked for at this rate (1, 10, 50 or 100)
+    control_rate_hz: float = 50.0  # movement-control frames per second (DJI: 50, its maximum)
+    encrypt: bool = True  # AES-256 on control, task and movement frames, with the app key
+
+
 @dataclass(frozen=True)
 class NodeSettings:
     """The field node's own settings."""
@@ -212,6 +229,7 @@ class Profile:
     description: str = ""
     path: Path | None = None  # the file it was loaded from
     usb: UsbIds = field(default_factory=UsbIds)
+    dji: DjiSettings = DjiSettings()  # the [dji] table (flavour "dji" only)
 
     @property
     def is_ground(self) -> bool:
@@ -446,6 +464,7 @@ _TOP = (
     "radio",
     "robot_id",
     "usb",
+    "dji",
 )
 _KINEMATICS = (
     "max_speed_mps",
@@ -491,6 +510,7 @@ _RADIO = (
 )
 _ROBOT_ID = ("source", "value")
 _USB = ("autopilot", "radio")
+_DJI = ("broadcast_hz", "control_rate_hz", "encrypt")
 
 _POSITIVE = _num(g=0.0)
 _PORT = _whole(1, 65535)
@@ -515,6 +535,7 @@ def parse_profile(data: Mapping[str, Any], source: str, path: Path | None = None
     radio = _radio(c, c.table(data, "radio", _RADIO, True))
     robot_id = _robot_id(c, c.table(data, "robot_id", _ROBOT_ID, False), radio)
     usb = _usb(c, c.table(data, "usb", _USB, False))
+    dji = _dji(c, c.table(data, "dji", _DJI, False), autopilot)
 
     if c.problems:
         raise ProfileError(c.problems)
@@ -532,6 +553,7 @@ def parse_profile(data: Mapping[str, Any], source: str, path: Path | None = None
         description=description,
         path=path,
         usb=_checked(usb),
+        dji=_checked(dji),
     )
 
 
@@ -795,6 +817,41 @@ def _id_map(c: _Checker, v: Any) -> Mapping[str, int] | None:
         out[key] = i
         owner[i] = key
     return MappingProxyType(out) if ok else None
+
+
+def _bool(c: _Checker, where: str, v: Any) -> bool | None:
+    """A boolean."""
+    if not isinstance(v, bool):
+        c.fail(where, f"must be true or false, got {_describe(v)}")
+        return None
+    return v
+
+
+def _dji(
+    c: _Checker, t: dict[str, Any] | None, autopilot: AutopilotSettings | None
+) -> DjiSettings | None:
+    """[dji]: the Onboard SDK link's rates and encryption; only for flavour "dji"."""
+    if t is None:
+        return None
+    if t and autopilot is not None and autopilot.flavour != "dji":
+        c.fail("dji", f'only for autopilot.flavour = "dji", not {autopilot.flavour!r}')
+        return None
+    d = DjiSettings()
+    rate = c.get(t, "dji.broadcast_hz", _int, d.broadcast_hz)
+    if rate is not None and rate not in DJI_BROADCAST_RATES:
+        listed = ", ".join(str(r) for r in DJI_BROADCAST_RATES)
+        c.fail("dji.broadcast_hz", f"must be one of {listed} (the M100's rates), got {rate}")
+        rate = None
+    control = c.get(t, "dji.control_rate_hz", _num(g=0.0), d.control_rate_hz)
+    if control is not None and control > 50.0:
+        c.fail(
+            "dji.control_rate_hz", f"must be <= 50 (the most the M100 reads), got {_fmt(control)}"
+        )
+        control = None
+    encrypt = c.get(t, "dji.encrypt", _bool, d.encrypt)
+    if rate is None or control is None or encrypt is None:
+        return None
+    return DjiSettings(rate, control, encrypt)
 
 
 def _robot_id(c: _Checker, t: dict[str, Any] | None, radio: RadioSettings | None) -> RobotId | None:

@@ -1,0 +1,141 @@
+"""The link the field node opens for its profile, whatever the autopilot family speaks.
+
+    link = open_link(profile, url, clock=tick_clock.now, dji_app_id=ID, dji_app_key=KEY)
+    link.wait_heartbeat(30.0)          # start-up: MAVLink heartbeat / DJI activation+authority
+    link.poll()                        # the loop
+
+`VehicleLink` is what the node, its recorder and its safe stop use of a link: the
+`VehicleCore` orders and views plus the port's poll, taps and start-up waits. The MAVLink
+`fieldkit.vehicle.link.Autopilot` (ArduPilot, PX4) and the DJI Onboard SDK's
+`fieldkit.vehicle.dji.link.DjiLink` both serve it; `open_link` picks one by the profile's
+`autopilot.flavour`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from fieldkit.robot.profiles import Profile
+from fieldkit.vehicle.autopilot import AutopilotError, AutopilotState, Event
+from fieldkit.vehicle.core import VehicleCommand
+
+
+class VehicleLink(Protocol):
+    """A vehicle core on its port, as the node uses it (parameters positional, so that each
+    backend keeps its own names and keyword extras)."""
+
+    url: str
+    on_rx: Callable[[bytes], None] | None
+    on_tx: Callable[[bytes], None] | None
+
+    @property
+    def telemetry(self) -> AutopilotState:
+        """The latest telemetry."""
+
+    @property
+    def pilot_override(self) -> bool:
+        """Whether the pilot has the vehicle."""
+
+    @property
+    def messages(self) -> int:
+        """Good frames received."""
+
+    @property
+    def bad_frames(self) -> int:
+        """Frames dropped for their checksum or layout."""
+
+    def poll(self, timeout: float = 0.0, /) -> int:
+        """Read, handle, move commands on, write: the loop's one call."""
+
+    def drain_events(self) -> list[Event]:
+        """What happened since the last call."""
+
+    def heartbeat_age(self) -> float:
+        """Seconds since the vehicle was last heard."""
+
+    def time_state(self) -> dict[str, object]:
+        """The core's clock readings."""
+
+    def set_time_state(self, state: dict[str, object], /) -> None:
+        """Restore `time_state()`'s readings."""
+
+    def arm(self) -> VehicleCommand:
+        """Arm."""
+
+    def disarm(self) -> VehicleCommand:
+        """Disarm."""
+
+    def takeoff(self, altitude_m: float, /) -> VehicleCommand:
+        """Take off."""
+
+    def goto(self, lat: float, lon: float, alt_m: float, /) -> VehicleCommand:
+        """Go to a point (alt above home)."""
+
+    def hold(self) -> VehicleCommand:
+        """Stop and keep position."""
+
+    def land(self) -> VehicleCommand:
+        """Land."""
+
+    def rtl(self) -> VehicleCommand:
+        """Return home."""
+
+    def cancel_all(self, reason: str = "cancelled", /) -> None:
+        """Give up every command in progress."""
+
+    def request_streams(self, rate_hz: float, /) -> VehicleCommand:
+        """Telemetry at `rate_hz` (at least)."""
+
+    def wait_heartbeat(self, timeout: float, /) -> AutopilotState:
+        """Start-up: the vehicle is there and ready to be commanded."""
+
+    def wait_gps_fix(self, timeout: float, /) -> AutopilotState:
+        """Start-up: a GPS good enough to fly on."""
+
+    def wait_position(self, timeout: float, /) -> AutopilotState:
+        """Start-up: a position."""
+
+    def wait_command(self, command: Any, timeout: float, /) -> Any:
+        """Poll until `command` is over; AutopilotError if it failed or is still pending."""
+
+    def close(self) -> None:
+        """Close the port."""
+
+
+def open_link(
+    profile: Profile,
+    url: str | None = None,
+    *,
+    clock: Callable[[], float],
+    dji_app_id: int | None = None,
+    dji_app_key: str | None = None,
+) -> VehicleLink:
+    """The link of `profile`'s autopilot family on `url` (default: `autopilot.url`).
+
+    Flavour "dji" needs the developer's app id and app key (the node's config); the DJI
+    link streams its movement control from a thread at the profile's control rate. Raises
+    AutopilotError (the DJI link's DjiError is one) when the link cannot be opened.
+    """
+    if profile.autopilot.flavour == "dji":
+        from fieldkit.vehicle.dji.link import DjiLink
+
+        if dji_app_id is None or dji_app_key is None:
+            raise AutopilotError(
+                f"{profile.name}: the DJI Onboard SDK needs the developer's app id and app key: "
+                "give them in the node config ([dji] app_id and app_key)"
+            )
+        return DjiLink.from_profile(
+            profile,
+            url,
+            app_id=dji_app_id,
+            app_key=dji_app_key,
+            clock=clock,
+            stream_thread=True,
+        )
+    from fieldkit.vehicle.link import Autopilot
+
+    return Autopilot.from_profile(profile, url, clock=clock)
+
+
+__all__ = ["VehicleLink", "open_link"]
