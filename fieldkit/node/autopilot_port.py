@@ -9,8 +9,9 @@ from typing import cast
 from fieldkit.robot import geo
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import FLIGHT_STATUSES, IN_AIR, ON_GROUND, FlightStatus
-from fieldkit.robot.vehicle import Telemetry
+from fieldkit.robot.vehicle import Telemetry, VehiclePort
 from fieldkit.vehicle.link import Autopilot
+from fieldkit.vehicle.links import VehicleLink
 
 _log = logging.getLogger("fieldkit.node")
 
@@ -77,3 +78,15 @@ class MavlinkAutopilot:
     def counters(self) -> tuple[int, int]:
         """(MAVLink messages received, bad frames)."""
         return self.link.messages, self.link.bad_frames
+
+
+def vehicle_port(link: VehicleLink, home: tuple[float, float, float]) -> VehiclePort:
+    """The node's `VehiclePort` over whichever link `fieldkit.vehicle.links.open_link` gave."""
+    if isinstance(link, Autopilot):
+        return MavlinkAutopilot(link, home)
+    from fieldkit.vehicle.clearpath.core import HuskyCore
+    from fieldkit.vehicle.clearpath.port import HuskyPort
+
+    if isinstance(link, HuskyCore):
+        return HuskyPort(link, home)
+    raise TypeError(f"no vehicle port for {type(link).__name__}")

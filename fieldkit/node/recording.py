@@ -20,7 +20,7 @@ from fieldkit.record.flight_bag import FlightBag
 from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.update.release import Release
-from fieldkit.vehicle.link import Autopilot
+from fieldkit.vehicle.links import VehicleLink
 
 #: The most a node's recording may take on disk, all its parts together, by default.
 DEFAULT_MAX_TOTAL_BYTES = 2 * 1024**3
@@ -110,14 +110,14 @@ class NodeRecording:
         self.recorder = FlightRecorder(self.flight, keep=False)
         self.writer: BagWriter | None = None
 
-    def tap(self, link: Autopilot) -> None:
+    def tap(self, link: VehicleLink) -> None:
         """Record the link's bytes from now on (the start-up's included)."""
         link.on_rx, link.on_tx = self.recorder.autopilot_rx, self.recorder.autopilot_tx
 
     def begin(
         self,
         node: Node,
-        link: Autopilot,
+        link: VehicleLink,
         *,
         script_name: str,
         seed: int,

@@ -47,6 +47,7 @@ from fieldkit.update.keys import RobotKeys
 from fieldkit.update.release import Release
 from fieldkit.update.store import VersionStore
 from fieldkit.vehicle.link import Autopilot
+from fieldkit.vehicle.links import VehicleLink
 from fieldkit.vehicle.pty import open_pty
 
 #: How long (real seconds) to wait for bytes written into the pty to reach the node's end.
@@ -146,7 +147,7 @@ class _Line:
 
 def recording_meta(
     node: Node,
-    link: Autopilot,
+    link: VehicleLink,
     *,
     script_name: str,
     seed: int,

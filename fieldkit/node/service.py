@@ -33,7 +33,7 @@ from typing import Any
 from fieldkit.node.daemon import Notifier, WatchdogPacer
 from fieldkit.node.node import Node
 from fieldkit.vehicle.autopilot import AutopilotError
-from fieldkit.vehicle.link import Autopilot
+from fieldkit.vehicle.links import VehicleLink
 
 #: Seconds the safe stop waits for the autopilot to acknowledge the stop order (the unit's
 #: TimeoutStopSec is 30: destroy(), this wait and the summary fit well inside it).
@@ -187,14 +187,14 @@ class NodeService:
         self.reloading = True
         self.node.stop()
 
-    def safe_stop(self, link: Autopilot) -> StopResult:
+    def safe_stop(self, link: VehicleLink) -> StopResult:
         """STOPPING=1 (unless reloading), then the profile's stop order, awaiting its ACK."""
         if not self.reloading:
             self.notifier.send("STOPPING=1", "STATUS=stopping: ordering the vehicle to stop")
         return stop_vehicle(link, self.node.profile.failsafe.on_stop, self.say)
 
 
-def stop_vehicle(link: Autopilot, action: str, say: Callable[[str], None]) -> StopResult:
+def stop_vehicle(link: VehicleLink, action: str, say: Callable[[str], None]) -> StopResult:
     """Order the stop `action` (hold, land, or stop: the hold mode) and wait for the ACK."""
     link.cancel_all(f"superseded by the stop order ({action})")
     command = link.land() if action == "land" else link.hold()
