@@ -192,13 +192,17 @@ class FrameReader:
                 self._reject(i, "bad_length")
                 i += 1
                 continue
-            end = i + length + 3
-            if end > n:
-                break  # the rest of the frame is still on its way
+            if n - i < HEADER_LEN:
+                break  # the header is still on its way
             if buf[i + 11] != STX:
+                # Checked before waiting for the whole frame: a noise SOH with a plausible
+                # LEN must not hold up the real frames behind it.
                 self._reject(i, "bad_stx")
                 i += 1
                 continue
+            end = i + length + 3
+            if end > n:
+                break  # the rest of the frame is still on its way
             if crc16(buf[i : end - 2]) != buf[end - 2] | buf[end - 1] << 8:
                 self._reject(i, "bad_crc")
                 i += 1
