@@ -160,9 +160,9 @@ class GpsCore:
                     self._garbage(1)
                     i += 1  # rescan: a real frame may start inside the bad one
             else:
-                j = i + 1
-                while j < n and buf[j] not in (0x24, 0xB5):
-                    j += 1
+                j = buf.find(b"$", i + 1)
+                k = buf.find(b"\xb5", i + 1, j if j >= 0 else n)
+                j = k if k >= 0 else (j if j >= 0 else n)
                 self._garbage(j - i)
                 i = j
         del buf[:i]
