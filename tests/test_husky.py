@@ -369,3 +369,78 @@ def test_fieldkit_node_drives_the_husky(tmp_path: Path) -> None:
         assert geo.range_bearing(*sim.position, *to)[0] <= ACCURACY
     assert "husky: arm: done" in result.output
     assert "run over: 80 ticks" in result.output
+
+
+def test_an_mcu_port_that_vanishes_is_reopened_by_path(tmp_path: Path) -> None:
+    """The USB adapter unplugged and back: the link says so once, keeps the loop going, and
+    opens the same path again (a udev name now pointing at the new device)."""
+    from fieldkit.vehicle.pty import open_pty
+    from fieldkit.vehicle.sim.husky_pty import SimHuskyPorts, _Port
+
+    first, gps, second = open_pty(), open_pty(), open_pty()
+    path = tmp_path / "prolific"
+    path.symlink_to(first.slave_path)
+    sim = SimHuskyPorts(HUSKY, first.master, gps.master, home=RIG_HOME)
+    now = [0.0]
+    husky = Husky(str(path), gps.slave_path, profile=HUSKY, clock=lambda: now[0])
+
+    def step(cond: object, limit_s: float) -> bool:
+        deadline = time.monotonic() + 30.0  # a hang guard
+        for _ in range(round(limit_s / 0.02)):
+            if cond():  # type: ignore[operator]
+                return True
+            assert time.monotonic() < deadline
+            sim.step(0.02)
+            now[0] += 0.02
+            husky.poll(0.005)
+        return bool(cond())  # type: ignore[operator]
+
+    try:
+        assert step(lambda: husky.telemetry.last_heartbeat is not None, 5.0)
+        first.close()  # unplugged
+        assert step(lambda: husky.link_down, 2.0)
+        path.unlink()
+        path.symlink_to(second.slave_path)  # plugged in again: a new device behind the name
+        sim.mcu_port = _Port(second.master, 115200)
+        sim.mcu.sink = sim.mcu_port.write
+        assert step(lambda: not husky.link_down, 2.0)
+        heard = husky.telemetry.last_heartbeat
+        assert step(lambda: husky.telemetry.last_heartbeat != heard, 2.0)
+        texts = [e.text for e in husky.drain_events() if e.kind in ("link", "reopened")]
+        assert len(texts) == 2
+        assert texts[0].startswith(f"MCU port {path} lost (read failed: ")
+        assert texts[1].startswith(f"MCU port {path} back after ")
+    finally:
+        husky.close()
+        sim.close()
+        for pty in (first, gps, second):
+            pty.close()
+
+
+def test_gps_options_belong_to_a_clearpath_base(tmp_path: Path) -> None:
+    runner = CliRunner()
+    result = runner.invoke(app, ["vehicle-sim", "--profile", "solo", "--gps-port", "ttyGPS"])
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert "error: --gps-port is for a Clearpath base; solo's GPS is its autopilot's" in (
+        result.output
+    )
+    script = tmp_path / "s.bzz"
+    script.write_text("function init() {}\nfunction step() {}\n")
+    result = runner.invoke(
+        app,
+        ["node", "--profile", "solo", "--script", str(script), "--robot-id", "1", "--radio",
+         "none", "--gps", "/dev/null"],
+    )  # fmt: skip
+    assert result.exit_code == 1
+    assert "error: solo: --gps is for a base with a GPS of its own (flavour clearpath)" in (
+        result.output
+    )
+    result = runner.invoke(
+        app,
+        ["node", "--profile", "husky", "--script", str(script), "--robot-id", "1", "--radio",
+         "none", "--autopilot", "/dev/nonexistent-mcu", "--gps", "/dev/null"],
+    )  # fmt: skip
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert "error: cannot open the Husky MCU port /dev/nonexistent-mcu: No such file" in (
+        result.output
+    )

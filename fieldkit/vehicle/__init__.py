@@ -7,6 +7,9 @@
 - `pty`: `open_pty` and `PtyPair`, the line between a simulated machine and its driver;
 - `sim.ardupilot.SimArduPilot` / `sim.vehicle.SimVehicle`: a vehicle that answers like
   ArduCopter or ArduPilot Rover, without I/O / on a port (real time for `fieldkit vehicle-sim`).
+- `links.open_link`: the link a profile's flavour needs (`Autopilot`, or for a Clearpath
+  base `clearpath.link.Husky`: its MCU's serial protocol and a GPS receiver);
+- `clearpath`: the Husky backend; `sim.husky`: a simulated Husky (MCU and GPS).
 
 The names below are loaded on first use: pymavlink takes half a second to import, and a caller
 that wants only a pty should not pay for it.

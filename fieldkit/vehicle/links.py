@@ -89,7 +89,7 @@ def open_link(
     if gps is not None:
         raise AutopilotError(
             f"{profile.name}: --gps is for a base with a GPS of its own (flavour clearpath); "
-            f"a {profile.autopilot.flavour} autopilot has its GPS inside"
+            f"its autopilot (flavour {profile.autopilot.flavour}) has the GPS inside"
         )
     from fieldkit.vehicle.link import Autopilot
 

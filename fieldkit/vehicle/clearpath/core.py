@@ -63,6 +63,7 @@ from fieldkit.vehicle.clearpath import messages as M
 from fieldkit.vehicle.clearpath.controller import GotoController
 from fieldkit.vehicle.clearpath.frame import Frame, FrameReader
 from fieldkit.vehicle.clearpath.gps import GpsCore
+from fieldkit.vehicle.core import VehicleCore
 
 #: Below this ground speed (m/s) the GPS course says nothing about the heading.
 TRACK_MIN_SPEED_MPS = 0.3
@@ -852,3 +853,8 @@ class HuskyCore:
 
 
 __all__ = ["HuskyCommand", "HuskyCore"]
+
+
+def _is_a_vehicle_core(core: HuskyCore) -> VehicleCore:
+    """Never called: mypy checks here that `HuskyCore` offers the `VehicleCore` interface."""
+    return core
