@@ -117,6 +117,14 @@ def test_goto_arrives_within_accuracy_and_limits(north: float, east: float, yaw_
     assert geo.range_bearing(t.lat, t.lon, *r.sim.position)[0] < 0.1  # type: ignore[arg-type]
 
 
+def test_a_ubx_receiver_drives_as_well() -> None:
+    r = rig(gps_protocol="ubx")
+    assert r.core.gps.ubx_messages > 0 and r.core.gps.sentences == 0
+    to = target(-6.0, 6.0)
+    drive(r, to, 30.0)
+    assert distance(r, to) <= ACCURACY and r.core.heading_source == "gps"
+
+
 def test_stop_is_on_the_wire_at_once() -> None:
     r = rig()
     to = target(30.0, 0.0)
