@@ -193,14 +193,16 @@ def noise(rng: random.Random) -> tuple[str, bytes]:
         return "ubx-checksum", bytes(frame)
     if r < 0.95:
         n = rng.choice((0xFFFF, MAX_UBX_PAYLOAD + 1, rng.randrange(0x10000)))
+        if n == frame[4] | frame[5] << 8:
+            n ^= 0x8000  # its own length would leave the frame good
         frame[4:6] = n.to_bytes(2, "little")
         return "ubx-length", bytes(frame)
     return "ubx-cut", bytes(frame[: rng.randrange(1, len(frame))])
 
 
 def gps_input(rng: random.Random) -> tuple[str, bytes, int, int, bool]:
-    """(kind, stream, good pieces put in, how many of them have only ordinary fields, whether
-    noise is fenced off by CR LF)."""
+    """(kind, stream, good pieces put in (plus, unfenced, the cut sentences that noise after
+    them may complete), how many have only ordinary fields, whether noise is fenced off)."""
     parts = []
     good = ordinary = 0
     kinds = set()
@@ -221,6 +223,9 @@ def gps_input(rng: random.Random) -> tuple[str, bytes, int, int, bool]:
             kinds.add("ubx")
         else:
             kind, bad = noise(rng)
+            if kind == "cut" and not fenced:
+                # Noise such as "*27" LF after it can complete it (a 1 in 256 checksum).
+                good += 1
             if fenced:
                 # Noise that ends a line and holds no UBX sync cannot swallow what follows.
                 bad = bad.replace(b"\xb5", b"?") + b"\r\n"
