@@ -223,8 +223,9 @@ def gps_input(rng: random.Random) -> tuple[str, bytes, int, int, bool]:
             kinds.add("ubx")
         else:
             kind, bad = noise(rng)
-            if kind == "cut" and not fenced:
-                # Noise such as "*27" LF after it can complete it (a 1 in 256 checksum).
+            if kind in ("cut", "ubx-cut") and not fenced:
+                # Noise after it can complete it: "*27" LF (a 1 in 256 checksum), or the
+                # "4" (0x34) a MON-VER poll cut before its last byte lacks.
                 good += 1
             if fenced:
                 # Noise that ends a line and holds no UBX sync cannot swallow what follows.
