@@ -268,7 +268,8 @@ BROKEN = [
         "solo",
         'flavour = "ardupilot"',
         'flavour = "betaflight"',
-        'autopilot.flavour: must be one of "ardupilot", "px4", "dji", got \'betaflight\'',
+        'autopilot.flavour: must be one of "ardupilot", "px4", "dji", "clearpath", '
+        "got 'betaflight'",
     ),
     ("solo", 'url = "udpin:0.0.0.0:14550"', "", "autopilot.url: missing required field"),
     (

@@ -558,7 +558,8 @@ def test_cli_on_a_new_pty_until_ctrl_c(tmp_path: Path) -> None:
 
 
 def test_cli_named_pty_link(tmp_path: Path) -> None:
-    proc = _start(["--profile", "husky", "--port", "ttySIM"], tmp_path)
+    # The husky is a Clearpath base now (tests/test_husky.py): an ArduPilot here.
+    proc = _start(["--profile", "solo", "--port", "ttySIM"], tmp_path)
     link = tmp_path / "ttySIM"
     try:
         assert proc.stdout is not None
@@ -568,7 +569,7 @@ def test_cli_named_pty_link(tmp_path: Path) -> None:
         assert link.is_symlink() and os.readlink(link).startswith("/dev/pts/")
         with Autopilot(str(link)) as ap:
             t = ap.wait_heartbeat(10.0)
-            assert t.mav_type == mavlink2.MAV_TYPE_GROUND_ROVER and t.mode == "MANUAL"
+            assert t.mav_type == mavlink2.MAV_TYPE_QUADROTOR and t.mode == "STABILIZE"
     finally:
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=120)  # a hang guard, not a speed test

@@ -138,7 +138,19 @@ def node_cmd(
         ),
     ] = None,
     autopilot: Annotated[
-        str | None, typer.Option("--autopilot", help="pymavlink URL (default: the profile's).")
+        str | None,
+        typer.Option(
+            "--autopilot",
+            help="pymavlink URL; a Clearpath base's MCU serial port (default: the profile's).",
+        ),
+    ] = None,
+    gps: Annotated[
+        str | None,
+        typer.Option(
+            "--gps",
+            metavar="DEV",
+            help="A Clearpath base's GPS receiver serial port (default: the profile's [gps]).",
+        ),
     ] = None,
     radio: Annotated[
         str | None,
@@ -208,7 +220,8 @@ def node_cmd(
     signals = ServiceSignals()
     try:
         given = {
-            "profile": profile, "script": script, "autopilot": autopilot, "radio": radio,
+            "profile": profile, "script": script, "autopilot": autopilot, "gps": gps,
+            "radio": radio,
             "robot_id": robot_id, "seconds": seconds, "out": out, "record": record,
             "record_max_mb": record_max_mb, "include": include, "command": command,
             "set": sets, "connect_timeout": connect_timeout, "seed": seed,
@@ -246,6 +259,8 @@ class NodeOptions:
     config: Path | None
     #: What a new flight's bag is pruned against (the config's [record] keep_mb), and where.
     record_keep: tuple[Path, float] | None = None
+    #: A Clearpath base's GPS port (--gps): None for the profile's.
+    gps: str | None = None
 
 
 def node_options(
@@ -316,6 +331,7 @@ def node_options(
         security=pick("security"),
         config=config,
         record_keep=keep,
+        gps=pick("gps"),
     )
 
 
@@ -384,6 +400,7 @@ def _node(o: NodeOptions, signals: ServiceSignals) -> None:
             program,
             rid,
             autopilot=o.autopilot,
+            gps=o.gps,
             radio=link_radio,
             connect_timeout=o.connect_timeout,
             seconds=seconds,
@@ -539,12 +556,13 @@ def _run(
     script_name: str = "",
     signals: ServiceSignals | None = None,
     reload_check: ReloadCheck | None = None,
+    gps: str | None = None,
 ) -> None:
     """Connect to the autopilot, run the loop, stop safely; exit 1 if the script is failed.
 
     Stopped by a signal, the node orders the profile's stop action and awaits its ACK; a
     reload whose check passed restarts the process in place on the new settings."""
-    from fieldkit.node.autopilot_port import MavlinkAutopilot
+    from fieldkit.node.autopilot_port import vehicle_port
     from fieldkit.node.clock import TickClock
     from fieldkit.node.daemon import Notifier
     from fieldkit.node.node import Node
@@ -560,7 +578,7 @@ def _run(
     notifier = Notifier()
     with _logging_to(say):
         try:
-            link = open_link(prof, autopilot, clock=tick_clock.now)
+            link = open_link(prof, autopilot, gps=gps, clock=tick_clock.now)
         except AutopilotError as e:
             raise fail(e) from None
         recording = (
@@ -591,7 +609,7 @@ def _run(
                 prof,
                 program,
                 rid,
-                MavlinkAutopilot(link, home),
+                vehicle_port(link, home),
                 radio,
                 home=home,
                 commands=commands,

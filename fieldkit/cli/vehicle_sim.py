@@ -4,11 +4,14 @@
     fieldkit vehicle-sim --profile husky --port ttySIM       # ./ttySIM -> the pty
     fieldkit vehicle-sim --profile solo --port tcpin:0.0.0.0:5760 --home 45.5,-73.6
     fieldkit vehicle-sim --profile m100 --port auto          # a DJI M100 flight controller
+    fieldkit vehicle-sim --profile husky                     # MCU pty, then GPS pty, printed
 
 The profile's `autopilot.flavour` picks the machine: ArduPilot (Copter or Rover) or PX4 (the
 Spiri) speaking MAVLink, or for "dji" an M100 flight controller speaking DJI's OPEN protocol
 (`fieldkit.vehicle.sim.dji`), which accepts only the app id `--app-id` and the app key
-`--app-key` (by default the test pair the tests use; never a real key on a command line).
+`--app-key` (by default the test pair the tests use; never a real key on a command line), or
+for "clearpath" a Husky: its MCU on `--port`, its GPS receiver on `--gps-port`
+(`fieldkit.vehicle.sim.husky`).
 
 With `--port auto` (the default) or any bare name, a pseudo-terminal is created and its path
 is the first line on stdout, for the node (`autopilot.url`) to open; a bare name other than
@@ -108,10 +111,16 @@ def vehicle_sim_cmd(
     rc_mode: Annotated[
         str, typer.Option("--rc-mode", help="DJI only: the RC mode switch at start, P, A or F.")
     ] = "F",
+    gps_port: Annotated[
+        str | None,
+        typer.Option(
+            "--gps-port",
+            help="A Clearpath base's GPS line: 'auto' (default; a new pty, its path printed "
+            "on the line after the MCU's), a bare name linked to it here, or a device path.",
+        ),
+    ] = None,
 ) -> None:
-    """Run a simulated vehicle: ArduPilot (Copter, Rover), or a DJI M100 for flavour dji."""
-    # Imported here: pymavlink is slow to import, and every fieldkit command loads this file.
-    from fieldkit.vehicle.pty import open_pty
+    """Run a simulated vehicle: ArduPilot, PX4, a DJI M100 or a Clearpath Husky, by flavour."""
 
     home_ll = parse_home(home)
     try:
@@ -134,44 +143,75 @@ def vehicle_sim_cmd(
         )
     if rc_mode not in ("P", "A", "F"):
         raise fail(f"--rc-mode must be P, A or F, got {rc_mode!r}")
+    clearpath = prof.autopilot.flavour == "clearpath"
+    if gps_port is not None and not clearpath:
+        raise fail(f"--gps-port is for a Clearpath base; {prof.name}'s GPS is its autopilot's")
 
-    pty: PtyPair | None = None
-    link: Path | None = None  # set once we have made it: only then is it ours to remove
+    made: list[Path] = []  # links we made: only those are ours to remove
+    ptys: list[PtyPair] = []
     try:
-        if _is_pty_request(port):
-            wanted = Path(port) if port != "auto" else None
-            if wanted is not None and (wanted.exists() or wanted.is_symlink()):
-                raise fail(f"{port} already exists: remove it or choose another name")
-            try:
-                pty = open_pty()
-            except OSError as e:
-                raise fail(f"cannot create a pty: {e.strerror or e}") from None
-            device: str | int = pty.master
-            if wanted is not None:
-                try:
-                    wanted.symlink_to(pty.slave_path)
-                except OSError as e:
-                    raise fail(f"cannot create {port}: {e.strerror or e}") from None
-                link = wanted
-        else:
-            device = port
-        if dji:
+        device, shown = _pty_or_path(port, made, ptys)
+        lines = [shown]
+        if clearpath:
+            gps, gps_shown = _pty_or_path(gps_port or "auto", made, ptys)
+            lines.append(gps_shown)
+            sim, banner = _husky_machine(prof, device, gps, home_ll, baud, gps_delay)
+            banner = banner.format(mcu=shown, gps=gps_shown)
+            where = ""
+        elif dji:
             sim, banner = _dji_machine(
                 prof, device, home_ll, baud, gps_delay, stream_hz, app_id, app_key, rc_mode
             )
+            where = shown
         else:
             sim, banner = _ardupilot_machine(
                 prof, device, home_ll, baud, gps_delay, stream_hz, sysid
             )
-        _serve(sim, banner, home_ll, port, pty, link, rate)
+            where = shown
+        if ptys:
+            # The paths alone, one a line (a Husky's MCU, then its GPS), for scripts
+            # (`read PORT < <(...)`).
+            for line in lines:
+                print(line, flush=True)
+        typer.echo(
+            f"vehicle-sim: {banner} at {home_ll[0]},{home_ll[1]}"
+            + (f" on {where}" if where else "")
+            + "; Ctrl-C to stop",
+            err=True,
+        )
+        _serve(sim, rate)
     finally:
-        if link is not None:
+        for link in made:
             try:
                 link.unlink()
             except OSError:
                 pass
-        if pty is not None:
+        for pty in ptys:
             pty.close()
+
+
+def _pty_or_path(name: str, made: list[Path], ptys: list[PtyPair]) -> tuple[str | int, str]:
+    """A line for the simulator: (pty master or device path, the path to print or show)."""
+    from fieldkit.vehicle.pty import open_pty
+
+    if not _is_pty_request(name):
+        return name, name
+    wanted = Path(name) if name != "auto" else None
+    if wanted is not None and (wanted.exists() or wanted.is_symlink()):
+        raise fail(f"{name} already exists: remove it or choose another name")
+    try:
+        pty = open_pty()
+    except OSError as e:
+        raise fail(f"cannot create a pty: {e.strerror or e}") from None
+    ptys.append(pty)
+    if wanted is None:
+        return pty.master, pty.slave_path
+    try:
+        wanted.symlink_to(pty.slave_path)
+    except OSError as e:
+        raise fail(f"cannot create {name}: {e.strerror or e}") from None
+    made.append(wanted)
+    return pty.master, os.path.abspath(wanted)
 
 
 def _ardupilot_machine(
@@ -247,21 +287,33 @@ def _dji_machine(
     )
 
 
-def _serve(
-    sim: _Machine,
-    name: str,
+def _husky_machine(
+    prof: Profile,
+    mcu: str | int,
+    gps: str | int,
     home: tuple[float, float],
-    port: str,
-    pty: PtyPair | None,
-    link: Path | None,
-    rate: float,
-) -> None:
-    """Print where to connect, run in real time until Ctrl-C or SIGTERM, then close."""
-    if pty is not None:
-        # First line on stdout: the path alone, for scripts (`read PORT < <(...)`).
-        print(os.path.abspath(link) if link is not None else pty.slave_path, flush=True)
-    where = pty.slave_path if pty is not None else port
-    typer.echo(f"vehicle-sim: {name} at {home[0]},{home[1]} on {where}; Ctrl-C to stop", err=True)
+    baud: int | None,
+    gps_delay: float,
+) -> tuple[_Machine, str]:
+    """The simulated Husky, its MCU and its GPS each on a line, and its banner's description
+    (with `{mcu}` and `{gps}` for where each line is)."""
+    from fieldkit.vehicle.sim.husky import HuskySimError
+    from fieldkit.vehicle.sim.husky_pty import SimHuskyPorts
+
+    gps_baud = prof.gps.baud if prof.gps is not None else 19200
+    try:
+        sim = SimHuskyPorts(
+            prof, mcu, gps, baud=baud if baud is not None else prof.autopilot.baud,
+            gps_baud=gps_baud, home=home, gps_fix_delay_s=gps_delay,
+        )  # fmt: skip
+    except HuskySimError as e:
+        raise fail(e) from None
+    gps_kind = sim.gps_protocol.upper()
+    return sim, f"{prof.name} (Clearpath Husky: MCU on {{mcu}}, GPS {gps_kind} on {{gps}})"
+
+
+def _serve(sim: _Machine, rate: float) -> None:
+    """Run `sim` in real time, its log on stderr, until Ctrl-C or SIGTERM; then close it."""
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("vehicle-sim: %(message)s"))
     logger = logging.getLogger("fieldkit.vehicle_sim")

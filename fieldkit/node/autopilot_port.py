@@ -1,5 +1,6 @@
 """The field node's view of its autopilot: a `fieldkit.vehicle.links.VehicleLink` (the MAVLink
-`Autopilot`, the DJI `DjiLink`) as telemetry snapshots in, supervisor orders out."""
+`Autopilot`, the DJI `DjiLink`; a Clearpath base has its own `HuskyPort`) as telemetry snapshots
+in, supervisor orders out."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from typing import cast
 from fieldkit.robot import geo
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import FLIGHT_STATUSES, IN_AIR, ON_GROUND, FlightStatus
-from fieldkit.robot.vehicle import Telemetry
+from fieldkit.robot.vehicle import Telemetry, VehiclePort
 from fieldkit.vehicle.links import VehicleLink
 
 _log = logging.getLogger("fieldkit.node")
@@ -83,3 +84,14 @@ class MavlinkAutopilot:
     def counters(self) -> tuple[int, int]:
         """(MAVLink messages received, bad frames)."""
         return self.link.messages, self.link.bad_frames
+
+
+def vehicle_port(link: VehicleLink, home: tuple[float, float, float]) -> VehiclePort:
+    """The node's `VehiclePort` over whichever link `fieldkit.vehicle.links.open_link` gave:
+    a Clearpath base's own (its orders are wheel speeds), else the autopilot adapter."""
+    from fieldkit.vehicle.clearpath.core import HuskyCore
+    from fieldkit.vehicle.clearpath.port import HuskyPort
+
+    if isinstance(link, HuskyCore):
+        return HuskyPort(link, home)
+    return MavlinkAutopilot(link, home)

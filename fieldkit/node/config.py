@@ -104,6 +104,7 @@ NODE_KEYS: dict[str, Check] = {
     "profile": _string,
     "script": _string,
     "autopilot": _string,
+    "gps": _string,
     "radio": _string,
     "robot_id": _integer,
     "seconds": _positive,

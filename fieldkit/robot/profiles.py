@@ -35,7 +35,7 @@ PROFILE_DIR = resources.profile_dir()
 
 VehicleKind = Literal["uav", "ground"]
 """`vehicle`: a UAV flies; a ground robot stays at z = 0."""
-Flavour = Literal["ardupilot", "px4", "dji"]
+Flavour = Literal["ardupilot", "px4", "dji", "clearpath"]
 """`autopilot.flavour`: which autopilot family speaks on `autopilot.url`."""
 FailsafeAction = Literal["hold", "land", "rtl", "stop"]
 """A `failsafe.on_*` action (see `Failsafe`)."""
@@ -46,7 +46,7 @@ IdSource = Literal["config", "hostname", "xbee"]
 
 VEHICLES: tuple[str, ...] = ("uav", "ground")
 """Allowed values of `vehicle`."""
-FLAVOURS: tuple[str, ...] = ("ardupilot", "px4", "dji")
+FLAVOURS: tuple[str, ...] = ("ardupilot", "px4", "dji", "clearpath")
 """Allowed values of `autopilot.flavour`."""
 FAILSAFE_ACTIONS: tuple[str, ...] = ("hold", "land", "rtl", "stop")
 """Allowed failsafe actions for a UAV."""
@@ -58,6 +58,8 @@ SECURITY_MODES: tuple[str, ...] = ("signed", "none")
 """Allowed values of `radio.security`: authenticated bundles or ROSBuzz's plain bytes."""
 ID_SOURCES: tuple[str, ...] = ("config", "hostname", "xbee")
 """Allowed values of `robot_id.source`."""
+GPS_PROTOCOLS: tuple[str, ...] = ("nmea", "ubx")
+"""Allowed values of `gps.protocol`: NMEA 0183 sentences, or u-blox's binary UBX."""
 MAX_ROBOT_ID = 255
 """Largest robot id: ROSBuzz, XbeeMav and MAVLink sysid hold 8 bits (docs/bundle.md#robot-ids)."""
 
@@ -71,6 +73,10 @@ _DEFAULT_MODES: dict[tuple[str, str], tuple[str, str, str, str]] = {
     ("ardupilot", "ground"): ("GUIDED", "HOLD", "HOLD", "RTL"),
     ("px4", "ground"): ("OFFBOARD", "LOITER", "LOITER", "RTL"),
     ("dji", "ground"): ("SDK_CONTROL", "HOVER", "HOVER", "GO_HOME"),
+    # The Clearpath MCU has no modes: these name what the Husky core is doing (driving to a
+    # point, stopped, driving home), with ArduPilot Rover's words.
+    ("clearpath", "ground"): ("GUIDED", "HOLD", "HOLD", "RTL"),
+    ("clearpath", "uav"): ("GUIDED", "HOLD", "HOLD", "RTL"),
 }
 
 
@@ -213,6 +219,27 @@ class UsbIds:
 
 
 @dataclass(frozen=True)
+class GpsSettings:
+    """A GPS receiver on a serial port of its own (the Husky's; autopilots have theirs)."""
+
+    port: str  # serial device, e.g. "/dev/clearpath/gps"
+    baud: int
+    protocol: str  # "nmea" or "ubx" (a u-blox receiver; NMEA sentences are read too)
+    timeout_s: float = 2.0  # silence after which the fix counts as lost
+
+
+@dataclass(frozen=True)
+class DriveSettings:
+    """A differential (skid-steer) base driven wheel speed by wheel speed."""
+
+    #: Effective wheel separation B in omega = (v_R - v_L) / B. Skid steering slips, so it is
+    #: wider than the geometric track (Husky: 0.5708 m; ROS 1's controller used x 1.875).
+    wheel_separation_m: float = 1.0703
+    #: Host-side limit of the turn rate (ROS 1's Husky controller config: 2.0 rad/s).
+    max_turn_rate_rps: float = 2.0
+
+
+@dataclass(frozen=True)
 class Profile:
     """One robot model's complete device profile."""
 
@@ -230,6 +257,8 @@ class Profile:
     path: Path | None = None  # the file it was loaded from
     usb: UsbIds = field(default_factory=UsbIds)
     dji: DjiSettings = DjiSettings()  # the [dji] table (flavour "dji" only)
+    gps: GpsSettings | None = None  # a GPS on its own port ([gps]; flavour "clearpath")
+    drive: DriveSettings | None = None  # a differential base ([drive]; flavour "clearpath")
 
     @property
     def is_ground(self) -> bool:
@@ -465,6 +494,8 @@ _TOP = (
     "robot_id",
     "usb",
     "dji",
+    "gps",
+    "drive",
 )
 _KINEMATICS = (
     "max_speed_mps",
@@ -511,6 +542,8 @@ _RADIO = (
 _ROBOT_ID = ("source", "value")
 _USB = ("autopilot", "radio")
 _DJI = ("broadcast_hz", "control_rate_hz", "encrypt")
+_GPS = ("port", "baud", "protocol", "timeout_s")
+_DRIVE = ("wheel_separation_m", "max_turn_rate_rps")
 
 _POSITIVE = _num(g=0.0)
 _PORT = _whole(1, 65535)
@@ -536,6 +569,9 @@ def parse_profile(data: Mapping[str, Any], source: str, path: Path | None = None
     robot_id = _robot_id(c, c.table(data, "robot_id", _ROBOT_ID, False), radio)
     usb = _usb(c, c.table(data, "usb", _USB, False))
     dji = _dji(c, c.table(data, "dji", _DJI, False), autopilot)
+    clearpath = autopilot is not None and autopilot.flavour == "clearpath"
+    gps = _gps(c, c.table(data, "gps", _GPS, False), "gps" in data, clearpath)
+    drive = _drive(c, c.table(data, "drive", _DRIVE, False), "drive" in data, clearpath)
 
     if c.problems:
         raise ProfileError(c.problems)
@@ -554,6 +590,8 @@ def parse_profile(data: Mapping[str, Any], source: str, path: Path | None = None
         path=path,
         usb=_checked(usb),
         dji=_checked(dji),
+        gps=gps,
+        drive=drive,
     )
 
 
@@ -906,3 +944,40 @@ def _usb(c: _Checker, t: dict[str, Any] | None) -> UsbIds | None:
         autopilot=None if autopilot is _ABSENT else autopilot,
         radio=None if radio is _ABSENT else radio,
     )
+
+
+def _gps(c: _Checker, t: dict[str, Any] | None, given: bool, clearpath: bool) -> GpsSettings | None:
+    """[gps]: the receiver's port; required by a Clearpath base (its MCU has no GPS)."""
+    if t is None:
+        return None  # not a table: already said
+    if not given:
+        if clearpath:
+            c.fail(
+                "gps",
+                'missing required table with autopilot.flavour = "clearpath" (the GPS '
+                'receiver: port = "/dev/ttyUSB1", baud, protocol = "nmea")',
+            )
+        return None
+    port = c.get(t, "gps.port", _nonempty)
+    # 19200: what Clearpath's own bringup sets its NMEA receivers to (HUSKY_NAVSAT_BAUD).
+    baud = c.get(t, "gps.baud", _whole(1, 10_000_000), 19200)
+    protocol = c.get(t, "gps.protocol", _choice(GPS_PROTOCOLS), "nmea")
+    timeout = c.get(t, "gps.timeout_s", _POSITIVE, 2.0)
+    if port is None or baud is None or protocol is None or timeout is None:
+        return None
+    return GpsSettings(port, baud, protocol, timeout)
+
+
+def _drive(
+    c: _Checker, t: dict[str, Any] | None, given: bool, clearpath: bool
+) -> DriveSettings | None:
+    """[drive]: the differential base's geometry and turn limit (defaults: the Husky's)."""
+    if t is None:
+        return None  # not a table: already said
+    if not given:
+        return DriveSettings() if clearpath else None
+    separation = c.get(t, "drive.wheel_separation_m", _POSITIVE, DriveSettings.wheel_separation_m)
+    turn = c.get(t, "drive.max_turn_rate_rps", _POSITIVE, DriveSettings.max_turn_rate_rps)
+    if separation is None or turn is None:
+        return None
+    return DriveSettings(separation, turn)

@@ -12,6 +12,11 @@
   ArduCopter or ArduPilot Rover, without I/O / on a port (real time for `fieldkit vehicle-sim`);
   `sim.px4.SimPx4` / `sim.vehicle.SimPx4Vehicle` the same for PX4; `open_sim_vehicle` picks
   one by the profile's flavour.
+- `links.open_link`: the link a profile's flavour needs (`Autopilot`, `Px4Autopilot`, the
+  DJI `dji.link.DjiLink`, or for a Clearpath base `clearpath.link.Husky`: its MCU's serial
+  protocol and a GPS receiver);
+- `dji`: the M100 backend; `sim.dji`: a simulated M100;
+- `clearpath`: the Husky backend; `sim.husky`: a simulated Husky (MCU and GPS).
 
 The names below are loaded on first use: pymavlink takes half a second to import, and a caller
 that wants only a pty should not pay for it.

@@ -1,13 +1,16 @@
 """The link the field node opens for its profile, whatever the autopilot family speaks.
 
-    link = open_link(profile, url, clock=tick_clock.now, dji_app_id=ID, dji_app_key=KEY)
-    link.wait_heartbeat(30.0)          # start-up: MAVLink heartbeat / DJI activation+authority
-    link.poll()                        # the loop
+    link = open_link(profile, url, clock=tick_clock.now)   # ArduPilot, PX4
+    link = open_link(profile, url, clock=..., dji_app_id=ID, dji_app_key=KEY)   # an M100
+    link = open_link(profile, url, clock=..., gps="/dev/ttyUSB1")   # a Husky and its GPS
+    link.wait_heartbeat(30.0)   # start-up: heartbeat / DJI activation+authority / MCU status
+    link.poll()                 # the loop
 
 `VehicleLink` is what the node, its recorder and its safe stop use of a link: the
 `VehicleCore` orders and views plus the port's poll, taps and start-up waits. The MAVLink
-`fieldkit.vehicle.link.Autopilot` (ArduPilot, PX4) and the DJI Onboard SDK's
-`fieldkit.vehicle.dji.link.DjiLink` both serve it; `open_link` picks one by the profile's
+`fieldkit.vehicle.link.Autopilot` (ArduPilot, PX4), the DJI Onboard SDK's
+`fieldkit.vehicle.dji.link.DjiLink` and the Clearpath base's `fieldkit.vehicle.clearpath.link.Husky`
+(its MCU and a GPS receiver) all serve it; `open_link` picks one by the profile's
 `autopilot.flavour`.
 """
 
@@ -107,17 +110,31 @@ def open_link(
     profile: Profile,
     url: str | None = None,
     *,
-    clock: Callable[[], float],
+    clock: Callable[[], float] | None = None,
+    gps: str | None = None,
     dji_app_id: int | None = None,
     dji_app_key: str | None = None,
 ) -> VehicleLink:
     """The link of `profile`'s autopilot family on `url` (default: `autopilot.url`).
 
     Flavour "dji" needs the developer's app id and app key (the node's config); the DJI
-    link streams its movement control from a thread at the profile's control rate. Raises
-    AutopilotError (the DJI link's DjiError is one) when the link cannot be opened.
+    link streams its movement control from a thread at the profile's control rate. A
+    Clearpath base reads its GPS on `gps` (default: the profile's `[gps] port`). Raises
+    AutopilotError (the DJI link's DjiError is one) when the link cannot be opened, or for a
+    `gps` given to a flavour whose GPS is inside the autopilot.
     """
-    if profile.autopilot.flavour == "dji":
+    flavour = profile.autopilot.flavour
+    options: dict[str, Any] = {} if clock is None else {"clock": clock}  # else each link's own
+    if gps is not None and flavour != "clearpath":
+        raise AutopilotError(
+            f"{profile.name}: --gps is for a base with a GPS of its own (flavour clearpath); "
+            f"its autopilot (flavour {flavour}) has the GPS inside"
+        )
+    if flavour == "clearpath":
+        from fieldkit.vehicle.clearpath.link import Husky
+
+        return Husky.from_profile(profile, url, gps, **options)
+    if flavour == "dji":
         from fieldkit.vehicle.dji.link import DjiLink
 
         if dji_app_id is None or dji_app_key is None:
@@ -130,12 +147,12 @@ def open_link(
             url,
             app_id=dji_app_id,
             app_key=dji_app_key,
-            clock=clock,
             stream_thread=True,
+            **options,
         )
     from fieldkit.vehicle.link import Autopilot
 
-    return Autopilot.from_profile(profile, url, clock=clock)
+    return Autopilot.from_profile(profile, url, **options)
 
 
 __all__ = ["VehicleLink", "open_link"]

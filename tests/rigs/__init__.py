@@ -2,7 +2,9 @@
 
 - `SimRig`: a `SimVehicle` and an `Autopilot` on the two ends of a real pty;
 - `MemoryRig`: the same pair as protocol cores (`SimArduPilot`, `AutopilotCore`) passing bytes
-  in memory: no port, no kernel, no waiting.
+  in memory: no port, no kernel, no waiting;
+- `HuskyMemoryRig` / `pty_husky`: the simulated Clearpath Husky (MCU and GPS) with its core in
+  memory, or on two real ptys for a `Husky` link or a `fieldkit node`.
 
 A px4 profile (the Spiri) gets PX4's pair: `SimPx4Vehicle` and `Px4Autopilot`, `SimPx4` and
 `Px4Core`.
@@ -235,3 +237,81 @@ def kill_and_drain(proc: subprocess.Popen[str], timeout: float) -> tuple[str, st
     proc.wait(timeout=timeout)  # dead: both pipes now end
     assert proc.stdout is not None and proc.stderr is not None
     return proc.stdout.read(), proc.stderr.read()
+
+
+class HuskyMemoryRig(_SteppedRig):
+    """A `SimHusky` and a `HuskyCore` passing bytes in memory, stepped in lockstep: each
+    `tick()` (0.1 s) runs the simulated machine in `substeps` steps, handing the core what
+    its MCU and its GPS sent after each, then ticks the core (its control cycle)."""
+
+    def __init__(
+        self,
+        profile: str | Profile = "husky",
+        *,
+        dt: float = 0.1,
+        substeps: int = 5,
+        core_options: dict[str, Any] | None = None,
+        **sim_options: Any,
+    ) -> None:
+        """A SimHusky (with `sim_options`) and a HuskyCore on the simulated clock."""
+        from fieldkit.vehicle.clearpath.core import HuskyCore
+        from fieldkit.vehicle.sim.husky import SimHusky
+
+        self.profile = load_profile(profile) if isinstance(profile, str) else profile
+        self.dt = dt
+        self.substeps = substeps
+        self.now = 0.0
+        self.sim = SimHusky(self.profile, **sim_options)
+        self.core = HuskyCore(profile=self.profile, clock=self.clock, **(core_options or {}))
+        self.mcu_wire: list[bytes] = []  # every byte string the core wrote, in order
+
+    def deliver(self) -> None:
+        """What the core wrote reaches the MCU (a stop order's frame, at once)."""
+        data = self.core.data_to_send()
+        if data:
+            self.mcu_wire.append(data)
+            self.sim.mcu.receive_data(data)
+
+    def tick(self) -> None:
+        """One 0.1 s step of the machine and one tick of the core, bytes delivered both ways."""
+        h = self.dt / self.substeps
+        for _ in range(self.substeps):
+            self.deliver()
+            self.sim.step(h)
+            self.now += h
+            self.core.receive_data(self.sim.mcu.data_to_send())
+            self.core.receive_gps(self.sim.gps.data_to_send())
+        self.core.tick()
+        self.deliver()
+
+    def connect(self, timeout_s: float = 5.0) -> None:
+        """Start-up as the node does it: the MCU heard, its platform asked, a GPS fix, armed."""
+        assert self.run_until(lambda: self.core.telemetry.last_heartbeat is not None, timeout_s)
+        streams = self.core.request_streams(10.0)
+        assert self.run_until(lambda: streams.done, timeout_s) and streams.ok, streams
+        assert self.run_until(lambda: self.core.gps.has_fix, timeout_s)
+        arm = self.core.arm()
+        assert self.run_until(lambda: arm.done, timeout_s) and arm.ok, arm
+
+
+@contextmanager
+def pty_husky(
+    home: tuple[float, float] = RIG_HOME, profile: str = "husky", **options: Any
+) -> Iterator[tuple[str, str, Any]]:
+    """A simulated Husky on two ptys, stepped in real time by a thread (as `fieldkit
+    vehicle-sim` runs it): yields the MCU's pty path, the GPS's, and the simulator."""
+    from fieldkit.vehicle.sim.husky_pty import SimHuskyPorts
+
+    mcu, gps = open_pty(), open_pty()
+    sim = SimHuskyPorts(load_profile(profile), mcu.master, gps.master, home=home, **options)
+    stop = threading.Event()
+    thread = threading.Thread(target=sim.run, args=(50.0, stop), daemon=True)
+    thread.start()
+    try:
+        yield mcu.slave_path, gps.slave_path, sim
+    finally:
+        stop.set()
+        thread.join()
+        sim.close()
+        mcu.close()
+        gps.close()
