@@ -53,6 +53,12 @@ from fieldkit.vehicle.pty import open_pty
 #: How long (real seconds) to wait for bytes written into the pty to reach the node's end.
 DELIVERY_TIMEOUT_S = 10.0
 
+#: What a tick's last part fed to the node may hold. A pty's line discipline holds at most
+#: 4095 unread bytes (N_TTY's buffer) whatever is written: a tick that read more (a loaded
+#: machine reads seconds of telemetry at once) is fed in two parts, the first polled through
+#: the link at the tick's time before the node's own poll reads the rest.
+LINE_QUEUE_BYTES = 2048
+
 
 class ReplayClock(TickClock):
     """A TickClock whose ticks begin at the recorded times; between ticks it stands at the
@@ -143,6 +149,27 @@ class _Line:
                     return
             except (BlockingIOError, OSError):
                 return
+
+
+def split_for_line(chunks: Sequence[bytes], limit: int) -> tuple[list[bytes], list[bytes]]:
+    """`chunks` as (head, rest): `rest` their last `limit` bytes at most, `head` the others
+    (empty when all fit), so that `rest` fits the loopback serial's queue whole."""
+    rest: list[bytes] = []
+    room = limit
+    for i in range(len(chunks) - 1, -1, -1):
+        chunk = chunks[i]
+        if len(chunk) <= room:
+            rest.insert(0, chunk)
+            room -= len(chunk)
+            continue
+        head = list(chunks[:i])
+        cut = len(chunk) - room
+        if cut:
+            head.append(chunk[:cut])
+        if room:
+            rest.insert(0, chunk[cut:])
+        return head, rest
+    return [], rest
 
 
 def recording_meta(
@@ -391,6 +418,18 @@ class _Replay:
                     f"serial ({self.consumed} of {expected} in {DELIVERY_TIMEOUT_S:g} s)"
                 )
 
+    def _pre_read(self, tick: FlightTick, head: Sequence[bytes]) -> None:
+        """Poll `head`, a tick's first bytes, through the link at the tick's recorded time:
+        what the node's own poll in that tick would have done with them first."""
+        self.recorder.started = True  # what it reads and writes now belongs to the tick
+        self.clock.set_next(tick.clock_s, tick.unix_ns)
+        self.clock.begin_tick()
+        try:
+            self.consumed = 0
+            self._read_all(self.line.feed(head), f"tick {tick.tick}")
+        finally:
+            self.clock.end_tick()
+
     def start(self, start: _Start | None) -> list[FlightTick]:
         """Feed the start-up; the ticks left for the node. A recorded node's start-up is its
         own, then its core's clock readings; an autopilot log's runs until the vehicle has
@@ -436,7 +475,10 @@ class _Replay:
                 if ahead > 0:
                     time.sleep(ahead)
             self.radio.inbox = list(tick.radio_in)
-            want = line.feed(tick.autopilot_rx)
+            head, rest = split_for_line(tick.autopilot_rx, LINE_QUEUE_BYTES)
+            if head:
+                self._pre_read(tick, head)
+            want = line.feed(rest)
             if not line.wait_delivered(want):
                 raise ReplayError(f"tick {tick.tick}: the recorded autopilot bytes did not arrive")
             clock.set_next(tick.clock_s, tick.unix_ns)
