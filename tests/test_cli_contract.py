@@ -292,6 +292,7 @@ BASE: dict[str, dict[str, str | list[str]]] = {
         "tlog": str(ROOT / "tests" / "data" / "tlogs" / "quad-flight-arducopter.tlog"),
         "output": "{d}/out.bag",
     },
+    "frames decode": {"protocol": "xbee", "frames": ["7e 00 02 8a 00 75"], "api_mode": "1"},
 }  # fmt: skip
 
 

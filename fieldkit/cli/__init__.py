@@ -2,7 +2,8 @@
 
 One module per command group (`buzz`: compile, run, asm, disasm; `sim`: sim run, experiment,
 sweep; `node`; `vehicle_sim`; `sitl`; `update`; `keys`: keys init; `patch`: patch apply;
-`bag`: bag info, plot, from-tlog; `replay`: a recorded flight into a fresh node), `errors`
+`bag`: bag info, plot, from-tlog; `replay`: a recorded flight into a fresh node; `frames`:
+frames decode, the protocol inspector), `errors`
 for the one way errors are reported and the exit-code rule, `output` for where results go.
 Library modules never import this package.
 """
@@ -14,7 +15,19 @@ from typing import Annotated
 
 import typer
 
-from fieldkit.cli import bag, buzz, keys, node, patch, replay, sim, sitl, update, vehicle_sim
+from fieldkit.cli import (
+    bag,
+    buzz,
+    frames,
+    keys,
+    node,
+    patch,
+    replay,
+    sim,
+    sitl,
+    update,
+    vehicle_sim,
+)
 from fieldkit.cli.errors import FieldkitGroup
 
 app = typer.Typer(
@@ -67,6 +80,7 @@ app.add_typer(keys.app, name="keys")
 app.add_typer(patch.app, name="patch")
 app.add_typer(bag.app, name="bag")
 app.command("replay")(replay.replay_cmd)
+app.add_typer(frames.app, name="frames")
 
 
 def main() -> None:
