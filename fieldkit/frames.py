@@ -1,8 +1,9 @@
 """The protocol inspector's registry: the byte formats `fieldkit frames decode` knows.
 
 One module owns each byte format: its codec, and beside the codec the two functions the
-inspector needs, `describe_frame` (one frame's fields) and `deframe` (the frames of a raw
-byte stream, found by the protocol's own streaming reader). This registry only maps a
+inspector needs, a describe function (one frame's fields: `describe_frame`, or the bundle's
+`describe`, NMEA's `describe_sentence`) and `deframe` (the frames of a raw byte stream,
+found by the protocol's own streaming reader). This registry only maps a
 protocol's name to those two, through small adapters that import the codec when it is
 used (so that `fieldkit --help` loads none of them), and composes them for a stream
 (`decode_stream`, with the counts the command line's summary prints).
