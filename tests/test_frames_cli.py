@@ -11,6 +11,8 @@ from __future__ import annotations
 import io
 import json
 import math
+import subprocess
+import sys
 from typing import Any
 
 import pytest
@@ -374,7 +376,19 @@ def test_stdin_counts_bad_frames() -> None:
     assert result.stderr.strip() == f"2 frames, 1 bad, {len(bad)} garbage bytes"
 
 
-def test_the_summary_is_printed_in_pieces_too() -> None:
+def test_a_real_pipe_into_the_console_script() -> None:
+    """stdin as a shell gives it (a pipe, read as it comes), not the test runner's buffer."""
+    stream = _noisy(STREAMS["xbeemav"])
+    proc = subprocess.run(
+        [sys.executable, "-m", "fieldkit", "frames", "decode", "xbeemav", "--stdin"],
+        input=stream, capture_output=True, check=False, timeout=60,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert [d["type"] for d in _objects(proc.stdout.decode())] == ["S", "A"]
+    assert proc.stderr.decode().endswith(" garbage bytes\n")
+
+
+def test_frames_split_across_reads_are_found_whole() -> None:
     """Frames split across reads are found whole (the de-framers keep partial frames)."""
     counts = frames.StreamCounts()
     data = _noisy(STREAMS["xbee"])
