@@ -16,4 +16,18 @@ class ConfigError(FieldkitError, ValueError):
     """An invalid parameter (command line, config file), with a message saying which and why."""
 
 
-__all__ = ["ConfigError", "FieldkitError"]
+class FrameError(FieldkitError, ValueError):
+    """Bytes that are not a valid frame of their protocol: `what` is wrong, at byte `offset`.
+
+    `offset` names the first bad byte, counted from the frame's first byte; a frame that ends
+    too soon names the byte that is missing (its length). Every protocol's `describe` raises
+    it (fieldkit.frames), so a host reports any protocol's bad frame the same way.
+    """
+
+    def __init__(self, what: str, offset: int) -> None:
+        super().__init__(f"{what} at byte {offset}")
+        self.what = what
+        self.offset = offset
+
+
+__all__ = ["ConfigError", "FieldkitError", "FrameError"]

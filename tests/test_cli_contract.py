@@ -300,6 +300,7 @@ BASE: dict[str, dict[str, str | list[str]]] = {
         "output": "{d}/out.bag",
     },
     "deploy": {"profile": "solo", "root": "{d}/root", "script": "{d}/good.bzz", "robot_id": "1"},
+    "frames decode": {"protocol": "xbee", "frames": ["7e 00 02 8a 00 75"], "api_mode": "1"},
 }  # fmt: skip
 
 

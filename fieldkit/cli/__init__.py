@@ -3,8 +3,9 @@
 One module per command group (`buzz`: compile, run, asm, disasm; `sim`: sim run, experiment,
 sweep; `node`; `vehicle_sim`; `sitl`; `update`; `keys`: keys init; `patch`: patch apply;
 `bag`: bag info, plot, from-tlog; `replay`: a recorded flight into a fresh node; `deploy`:
-the node as a systemd service; `doctor`: the field preflight), `errors` for the one way
-errors are reported and the exit-code rule, `output` for where results go.
+the node as a systemd service; `doctor`: the field preflight; `frames`: frames decode, the
+protocol inspector), `errors` for the one way errors are reported and the exit-code rule,
+`output` for where results go.
 Library modules never import this package.
 """
 
@@ -20,6 +21,7 @@ from fieldkit.cli import (
     buzz,
     deploy,
     doctor,
+    frames,
     keys,
     node,
     patch,
@@ -83,6 +85,7 @@ app.add_typer(bag.app, name="bag")
 app.command("replay")(replay.replay_cmd)
 app.command("deploy")(deploy.deploy_cmd)
 app.command("doctor")(doctor.doctor_cmd)
+app.add_typer(frames.app, name="frames")
 
 
 def main() -> None:

@@ -56,7 +56,11 @@ from __future__ import annotations
 import re
 import struct
 from collections import Counter
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
+from typing import Any
+
+from fieldkit.errors import FrameError
 
 START = 0x7E
 """The frame start delimiter."""
@@ -76,6 +80,8 @@ AT_RESPONSE = 0x88
 """Frame type: AT command response (module -> host)."""
 AT_COMMAND = 0x08
 """Frame type: local AT command (host -> module): a query or a setting, answered by 0x88."""
+AT_QUEUE = 0x09
+"""Frame type: AT command, queued (host -> module: XbeeMav asks "SL"/"SH" with it)."""
 BROADCAST64 = 0x000000000000FFFF
 """The 64-bit broadcast address."""
 XBEEMAV_DEST16 = 0xFFFF
@@ -368,11 +374,26 @@ class FrameReader:
         """End of a burst: abandon incomplete candidates as truncated, return what follows."""
         return self._scan(final=True)
 
+    def feed_data(self, data: bytes) -> list[bytes]:
+        """`feed`, but the frame data (type byte first) of every checksummed frame it completes,
+        unknown types and frames too short for their type included: an inspector shows those
+        too. The counters move exactly as `feed` moves them."""
+        self._buf += data
+        raw: list[bytes] = []
+        self._scan(final=False, raw=raw)
+        return raw
+
+    def flush_data(self) -> list[bytes]:
+        """`flush`, returning frame data as `feed_data` does."""
+        raw: list[bytes] = []
+        self._scan(final=True, raw=raw)
+        return raw
+
     def reset(self) -> None:
         """Forget any buffered bytes (e.g. after reopening the port), uncounted."""
         self._buf.clear()
 
-    def _scan(self, final: bool) -> list[Frame]:
+    def _scan(self, final: bool, raw: list[bytes] | None = None) -> list[Frame]:
         buf = self._buf
         n = len(buf)
         stats = self.stats
@@ -439,6 +460,8 @@ class FrameReader:
                 pos = i + 1
                 continue
             pos = end
+            if raw is not None:
+                raw.append(bytes(frame_data))
             frame = parse_frame_data(frame_data)
             if frame is None:
                 known = frame_data[0] in MIN_FRAME_DATA
@@ -455,3 +478,219 @@ class FrameReader:
     def _bad(stats: Counter[str], what: str) -> None:
         stats[what] += 1
         stats["bad_frames"] += 1
+
+
+# ------------------------------------------------------------------ the inspector's view
+
+#: Names `describe_frame` gives the frame types it knows.
+FRAME_NAMES: dict[int, str] = {
+    TX_REQUEST: "transmit_request",
+    RX_PACKET: "receive_packet",
+    TX_STATUS: "transmit_status",
+    MODEM_STATUS: "modem_status",
+    AT_RESPONSE: "at_response",
+    AT_COMMAND: "at_command",
+    AT_QUEUE: "at_command_queue",
+}
+#: Shortest frame data `describe_frame` accepts per type: the radio's, and the AT commands'
+#: (type, frame id, two command letters).
+_MIN_DESCRIBED: dict[int, int] = {**MIN_FRAME_DATA, AT_COMMAND: 4, AT_QUEUE: 4}
+#: Where the RF data starts in the frame data of the types that carry it.
+_RF_START: dict[int, int] = {TX_REQUEST: _TX_HEAD.size, RX_PACKET: _RX_HEAD.size}
+#: FrameReader counters of candidates it abandoned (the rest are frames it consumed).
+_REJECTED = ("bad_checksum", "bad_length", "bad_escape", "truncated")
+
+Offsets = Callable[[int], int]
+"""Maps an offset in the frame data (its length: the checksum) to the offset in the frame."""
+
+
+def _unescaped(frame: bytes, api_mode: int) -> tuple[bytes, list[int], FrameError | None]:
+    """frame[1:] unescaped, the offset in `frame` of each byte, and the first bad escape
+    (API mode 2: the bytes before it are returned, the caller decides if it matters)."""
+    n = len(frame)
+    if api_mode == 1:
+        return frame[1:], list(range(1, n)), None
+    out = bytearray()
+    where: list[int] = []
+    i = 1
+    while i < n:
+        b = frame[i]
+        if b == START:
+            return bytes(out), where, FrameError("a raw 0x7e inside an API mode 2 frame", i)
+        if b == ESCAPE:
+            if i + 1 == n:
+                return bytes(out), where, FrameError("the frame ends inside an escape", n)
+            x = frame[i + 1] ^ 0x20
+            if x not in SPECIAL:
+                what = f"0x7d escapes 0x{frame[i + 1]:02x}, not one of 7e 7d 11 13 (xor 0x20)"
+                return bytes(out), where, FrameError(what, i + 1)
+            out.append(x)
+            where.append(i)
+            i += 2
+        else:
+            out.append(b)
+            where.append(i)
+            i += 1
+    return bytes(out), where, None
+
+
+def _layout(frame: bytes, api_mode: int) -> tuple[bytes, int, Offsets]:
+    """(frame data, checksum, offsets) of exactly one API frame; FrameError where it is bad.
+
+    The same rules as `FrameReader`: start delimiter, length 1..MAX_FRAME_DATA, API mode 2
+    escapes, checksum; and nothing after the checksum.
+    """
+    if api_mode not in API_MODES:
+        raise ValueError(f"API mode must be 1 or 2, got {api_mode!r}")
+    n = len(frame)
+    if n == 0:
+        raise FrameError("empty frame", 0)
+    if frame[0] != START:
+        raise FrameError(f"0x{frame[0]:02x} is not the start delimiter 0x7e", 0)
+    body, where, bad = _unescaped(frame, api_mode)
+    if len(body) < 2:
+        raise bad or FrameError("the frame ends before its length field", n)
+    length = body[0] << 8 | body[1]
+    if not 0 < length <= MAX_FRAME_DATA:
+        raise FrameError(f"length {length}, must be 1..{MAX_FRAME_DATA}", where[0])
+    total = length + 3  # length field, frame data, checksum
+    if len(body) < total:
+        what = f"truncated: length {length} and a checksum, {len(body) - 2} bytes follow"
+        raise bad or FrameError(what, n)
+    last = where[total - 1]
+    end = last + (2 if frame[last] == ESCAPE and api_mode == 2 else 1)
+    if end < n:
+        raise FrameError(f"{n - end} bytes after the checksum", end)
+    data = body[2 : total - 1]
+    check = body[total - 1]
+    if checksum(data) != check:
+        raise FrameError(
+            f"checksum 0x{check:02x}, the frame data's is 0x{checksum(data):02x}", last
+        )
+
+    def at(k: int) -> int:
+        return where[2 + min(k, length)]
+
+    return data, check, at
+
+
+def _fields(data: bytes, at: Offsets) -> dict[str, Any]:
+    """The fields of checksummed frame data, by type (FrameError if too short for its type)."""
+    kind = data[0]
+    least = _MIN_DESCRIBED.get(kind)
+    if least is not None and len(data) < least:
+        what = f"{FRAME_NAMES[kind]} frame data of {len(data)} bytes, it has at least {least}"
+        raise FrameError(what, at(len(data)))
+    if kind in (AT_COMMAND, AT_QUEUE):
+        return {
+            "frame_id": data[1],
+            "command": data[2:4].decode("latin-1"),
+            "parameter": data[4:].hex(),
+        }
+    frame = parse_frame_data(data)
+    if isinstance(frame, TransmitRequest):
+        return {
+            "frame_id": frame.frame_id,
+            "dest64": f"{frame.dest64:016x}",
+            "dest16": f"{frame.dest16:04x}",
+            "radius": frame.radius,
+            "options": frame.options,
+            "rf_data": frame.rf_data.hex(),
+        }
+    if isinstance(frame, ReceivePacket):
+        return {
+            "source64": f"{frame.source64:016x}",
+            "source16": f"{frame.source16:04x}",
+            "options": frame.options,
+            "rf_data": frame.rf_data.hex(),
+        }
+    if isinstance(frame, TransmitStatus):
+        return {
+            "frame_id": frame.frame_id,
+            "dest16": f"{frame.dest16:04x}",
+            "retries": frame.retries,
+            "delivery_status": frame.delivery_status,
+            "discovery_status": frame.discovery_status,
+        }
+    if isinstance(frame, ModemStatus):
+        return {"status": frame.status}
+    if isinstance(frame, AtResponse):
+        return {
+            "frame_id": frame.frame_id,
+            "command": frame.command.decode("latin-1"),
+            "status": frame.status,
+            "data": frame.data.hex(),
+        }
+    return {"data": data[1:].hex()}  # a type the radio does not read: its bytes
+
+
+def _describe(frame: bytes, api_mode: int) -> tuple[dict[str, Any], bytes, Offsets]:
+    """`describe_frame`'s dict, the frame data and its offsets."""
+    data, check, at = _layout(bytes(frame), api_mode)
+    kind = data[0]
+    out: dict[str, Any] = {
+        "api_mode": api_mode,
+        "length": len(data),
+        "frame_type": kind,
+        "name": FRAME_NAMES.get(kind),
+        **_fields(data, at),
+        "checksum": check,
+    }
+    return out, data, at
+
+
+def describe_frame(frame: bytes, api_mode: int = 1) -> dict[str, Any]:
+    """The fields of exactly one API frame (`fieldkit frames decode xbee`), as JSON values.
+
+    Keys: api_mode, length, frame_type, name (None for a type not in FRAME_NAMES), the type's
+    fields (dest64/source64 and dest16/source16 as hex, rf_data and other payloads as hex),
+    checksum. FrameError names the first bad byte: start delimiter, length, escape, the
+    checksum byte itself when the sum fails, bytes after the checksum, a frame too short
+    for its type. ValueError for an API mode other than 1 or 2.
+    """
+    return _describe(frame, api_mode)[0]
+
+
+def unwrap_rf_data(frame: bytes, api_mode: int = 1) -> tuple[dict[str, Any], bytes, Offsets]:
+    """(describe_frame's dict, the RF data, the frame offset of each RF data offset) of a
+    transmit request or receive packet: for the protocols that travel as RF data (XbeeMav
+    packets, bundles), whose errors then name bytes of the whole frame. FrameError for a
+    frame of another type."""
+    out, data, at = _describe(frame, api_mode)
+    start = _RF_START.get(data[0])
+    if start is None:
+        what = f"frame type 0x{data[0]:02x} ({out['name'] or 'unknown'}) carries no RF data"
+        raise FrameError(what, at(0))
+    return out, data[start:], lambda k: at(start + k)
+
+
+def describe_inside(
+    frame: bytes, describe_rf: Callable[[bytes], dict[str, Any]], api_mode: int = 1
+) -> dict[str, Any]:
+    """`describe_rf` of the RF data of a transmit request or receive packet, with the frame's
+    own fields under "xbee"; a FrameError of `describe_rf` names its byte in the frame."""
+    head, rf, at = unwrap_rf_data(frame, api_mode)
+    try:
+        inner = describe_rf(rf)
+    except FrameError as e:
+        raise FrameError(e.what, at(e.offset)) from None
+    return {**inner, "xbee": head}
+
+
+def deframe(chunks: Iterable[bytes], stats: Counter[str], api_mode: int = 1) -> Iterator[bytes]:
+    """Every checksummed API frame in a byte stream, as its bytes, by `FrameReader`'s rules
+    (resynchronising at every 0x7e; unknown types included); the end of `chunks` is the end
+    of the last burst. stats["bad_frames"] counts the candidates abandoned on the way."""
+    reader = FrameReader(api_mode)
+    rejected = 0
+    pending = iter(chunks)
+    while True:
+        chunk = next(pending, None)
+        found = reader.flush_data() if chunk is None else reader.feed_data(chunk)
+        now = sum(reader.stats[k] for k in _REJECTED)
+        stats["bad_frames"] += now - rejected
+        rejected = now
+        for data in found:
+            yield frame_bytes(data, api_mode)
+        if chunk is None:
+            return

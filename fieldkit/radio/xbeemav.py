@@ -70,7 +70,11 @@ from collections import Counter, OrderedDict, deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from itertools import islice
+from typing import Any
 
+from fieldkit.errors import FrameError
+
+from . import xbee
 from .base import check_robot_id
 
 FRAGMENT_DATA = 250
@@ -114,6 +118,75 @@ def msgid_of(data: bytes) -> int | None:
     if len(data) >= 8 and data[6] == 0 and data[7] == 2:  # word 0, big-endian: lane 0 = type 2
         return data[5]
     return None
+
+
+def describe_packet(rf: bytes) -> dict[str, Any]:
+    """The fields of one XbeeMav packet, the RF data of one frame, as JSON values.
+
+    Keys: type ("S", "F", "P" or "A"), then for S sysid, msgid, payload64 (the words, each
+    as 16 hex digits, big-endian as on the air); for F packet_id, address, index, offset,
+    data (hex); for P packet_id, address, count; for A packet_id, address, missing (the
+    indices; empty: complete). FrameError, naming the first bad byte, for exactly the
+    packets `XbeeMav.receive` counts as bad, empty or unknown (tests hold the two together).
+    """
+    rf = bytes(rf)
+    n = len(rf)
+    if n == 0:
+        raise FrameError("empty packet", 0)
+    kind = rf[0]
+    if kind == STANDARD:
+        if n < 3:
+            raise FrameError(f"standard packet of {n} bytes: 'S', sysid, msgid, then words", n)
+        size = n - 3
+        if size == 0:
+            raise FrameError("standard packet without payload words", 3)
+        if size % 8:
+            raise FrameError(f"payload of {size} bytes ends in a partial word", n - size % 8)
+        words = [rf[i : i + 8].hex() for i in range(3, n, 8)]
+        return {"type": "S", "sysid": rf[1], "msgid": rf[2], "payload64": words}
+    if kind == FRAGMENT:
+        if n <= FRAGMENT_HEADER:
+            what = f"fragment of {n} bytes: a {FRAGMENT_HEADER}-byte header, then data"
+            raise FrameError(what, n)
+        if n > MAX_RF_DATA:
+            what = f"fragment of {n - FRAGMENT_HEADER} data bytes, at most {FRAGMENT_DATA}"
+            raise FrameError(what, MAX_RF_DATA)
+        index = rf[3]
+        if index >= MAX_FRAGMENTS:
+            raise FrameError(f"fragment index {index}, at most {MAX_FRAGMENTS - 1}", 3)
+        offset = rf[4] << 8 | rf[5]
+        if offset + n - FRAGMENT_HEADER > MAX_PACKET:
+            what = f"fragment at offset {offset} ends past the largest packet ({MAX_PACKET})"
+            raise FrameError(what, 4)
+        return {
+            "type": "F",
+            "packet_id": rf[1],
+            "address": rf[2],
+            "index": index,
+            "offset": offset,
+            "data": rf[FRAGMENT_HEADER:].hex(),
+        }
+    if kind == PING:
+        if n != 4:
+            raise FrameError(f"ping of {n} bytes: 'P', packet id, address, count", min(n, 4))
+        if rf[3] == 0:
+            raise FrameError("ping for a packet of 0 fragments", 3)
+        return {"type": "P", "packet_id": rf[1], "address": rf[2], "count": rf[3]}
+    if kind == ACK:
+        if n < 3:
+            raise FrameError(f"ack of {n} bytes: 'A', packet id, address, missing...", n)
+        return {"type": "A", "packet_id": rf[1], "address": rf[2], "missing": list(rf[3:])}
+    raise FrameError(f"0x{kind:02x} is not an XbeeMav packet type (S, F, P, A)", 0)
+
+
+def describe_frame(frame: bytes, api_mode: int = 1) -> dict[str, Any]:
+    """`describe_packet` of RF data, or of the RF data of a whole XBee API frame (it starts
+    with 0x7e, which no packet does): then the frame's own fields are under "xbee" and
+    every FrameError offset counts from the frame's first byte."""
+    frame = bytes(frame)
+    if frame[:1] != bytes((xbee.START,)):
+        return describe_packet(frame)
+    return xbee.describe_inside(frame, describe_packet, api_mode)
 
 
 @dataclass

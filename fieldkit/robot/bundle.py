@@ -44,8 +44,10 @@ import struct
 from array import array
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
-from fieldkit.errors import FieldkitError
+from bvm import wire
+from fieldkit.errors import FieldkitError, FrameError
 
 #: Mavlink payload64[0] message types (ROSBuzz include/rosbuzz/roscontroller.h).
 UPDATER_MESSAGE = 1
@@ -381,3 +383,47 @@ def from_rf_data(data: bytes) -> Bundle:
         return decode(data[RF_PREFIX:])
     except BundleError as e:
         raise BundleError(e.what, RF_PREFIX + e.offset) from None
+
+
+# ------------------------------------------------------------------------------ inspector
+
+
+def describe(data: bytes) -> dict[str, Any]:
+    """The fields of one bundle as JSON values (`fieldkit frames decode bundle`).
+
+    `data` is the air bytes (`encode`, a whole number of words), or XbeeMav standard-packet
+    RF data (`to_rf_data`: 'S', sysid, msgid, words; then sysid and msgid are shown too).
+    Keys: robot, number, time_ns, lat, lon, alt, messages: each {"hex", "type"} with the
+    Buzz message type's name (bvm.wire.MsgType), or type None and "error" for bytes that do
+    not decode as a Buzz message (the bundle itself is still valid). FrameError with the
+    BundleError's offset in `data`.
+    """
+    data = bytes(data)
+    head: dict[str, Any] = {}
+    try:
+        if len(data) % 8 == RF_PREFIX and data[:1] == b"S":
+            head = {"sysid": data[1], "msgid": data[2]}
+            bundle = from_rf_data(data)
+        else:
+            bundle = decode(data)
+    except BundleError as e:
+        raise FrameError(e.what, e.offset) from None
+    return {
+        **head,
+        "robot": bundle.robot,
+        "number": bundle.number,
+        "time_ns": bundle.time_ns,
+        "lat": bundle.lat,
+        "lon": bundle.lon,
+        "alt": bundle.alt,
+        "messages": [_describe_message(m) for m in bundle.messages],
+    }
+
+
+def _describe_message(message: bytes) -> dict[str, Any]:
+    """{"hex", "type"} of one message of a bundle (type None and "error" if not Buzz)."""
+    try:
+        kind = wire.decode(message).type
+    except wire.DecodeError as e:
+        return {"hex": message.hex(), "type": None, "error": str(e)}
+    return {"hex": message.hex(), "type": kind.name}
