@@ -3,7 +3,8 @@
 One module per command group (`buzz`: compile, run, asm, disasm; `sim`: sim run, experiment,
 sweep; `node`; `vehicle_sim`; `sitl`; `update`; `keys`: keys init; `patch`: patch apply;
 `bag`: bag info, plot, from-tlog; `replay`: a recorded flight into a fresh node; `deploy`:
-the node as a systemd service; `doctor`: the field preflight), `errors` for the one way
+the node as a systemd service; `doctor`: the field preflight; `ground`: the ground station
+and its page, `cmd`: one operator command), `errors` for the one way
 errors are reported and the exit-code rule, `output` for where results go.
 Library modules never import this package.
 """
@@ -20,6 +21,7 @@ from fieldkit.cli import (
     buzz,
     deploy,
     doctor,
+    ground,
     keys,
     node,
     patch,
@@ -83,6 +85,8 @@ app.add_typer(bag.app, name="bag")
 app.command("replay")(replay.replay_cmd)
 app.command("deploy")(deploy.deploy_cmd)
 app.command("doctor")(doctor.doctor_cmd)
+app.command("ground")(ground.ground_cmd)
+app.command("cmd")(ground.cmd_cmd)
 
 
 def main() -> None:
