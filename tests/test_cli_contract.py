@@ -300,6 +300,10 @@ BASE: dict[str, dict[str, str | list[str]]] = {
         "output": "{d}/out.bag",
     },
     "deploy": {"profile": "solo", "root": "{d}/root", "script": "{d}/good.bzz", "robot_id": "1"},
+    "ground": {"radio": "udp://127.255.255.255:24999", "keys": "{d}/keys", "http_port": "0",
+               "seconds": "0.1"},
+    "cmd": {"code": "takeoff", "radio": "udp://127.255.255.255:24999", "keys": "{d}/keys",
+            "timeout": "0.1", "listen": "0"},
 }  # fmt: skip
 
 

@@ -180,8 +180,11 @@ def cmd_cmd(
     ],
     radio: _RadioOption,
     params: Annotated[
-        list[float] | None,
-        typer.Argument(metavar="[PARAM]...", help="Params: a waypoint's ID LAT LON ALT."),
+        list[str] | None,
+        typer.Argument(
+            metavar="[PARAM]...",
+            help="Params: a waypoint's ID LAT LON ALT (put -- before them if one is negative).",
+        ),
     ] = None,
     to: Annotated[
         int | None, typer.Option("--to", metavar="ROBOT", help="One robot (default: all).")
@@ -213,6 +216,12 @@ def cmd_cmd(
             ) from None
     if not 0 < number < 0x10000:
         raise usage_error(f"CODE {code}: an rc code is 1..65535")
+    values = []
+    for text in params or []:
+        try:
+            values.append(float(text))
+        except ValueError:
+            raise usage_error(f"PARAM {text!r}: a number") from None
     if not 0 < timeout <= 86400 or not 0 <= listen <= 600:
         raise usage_error("--timeout is 0..86400 s and --listen 0..600 s")
     if keys is None:
@@ -243,7 +252,7 @@ def cmd_cmd(
                     "with the same swarm key (--keys) on this radio's channel"
                 )
             try:
-                c = station.command(number, params or [], to, timeout=timeout)
+                c = station.command(number, values, to, timeout=timeout)
             except GroundError as e:
                 raise fail(f"{e}\n  hint: check the id, or --listen longer") from None
             say(f"sent {c.describe()}, waiting for {', '.join(map(str, sorted(c.expected)))}")

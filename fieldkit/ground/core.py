@@ -575,7 +575,7 @@ class GroundStation:
                 for c in self.commands[-10:]
             ]
             return {
-                "t": round(now - (self.started or now), 1),
+                "t": 0.0 if self.started is None else round(now - self.started, 1),
                 "ground": self.id,
                 "can_command": self.signer is not None,
                 "origin": None if self.frame is None else [self.frame.lat, self.frame.lon],
