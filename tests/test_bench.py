@@ -70,3 +70,10 @@ def test_digest_bench_runs(capsys: object) -> None:
     bench.main(["--seconds", "21", "--repeat", "1"])
     out = capsys.readouterr().out  # type: ignore[attr-defined]
     assert out.count("of the 100 ms tick") == 2
+
+
+def test_ground_bench_hears_every_robot() -> None:
+    bench = load("ground_throughput")
+    r = bench.measure(20, 2.0, 1, True)
+    assert r["robots_in_view"] == 20 and r["frames"] > 400
+    assert r["counters"].get("suspect", 0) == 0 and r["ratio"] > 0

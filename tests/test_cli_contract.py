@@ -301,6 +301,10 @@ BASE: dict[str, dict[str, str | list[str]]] = {
     },
     "deploy": {"profile": "solo", "root": "{d}/root", "script": "{d}/good.bzz", "robot_id": "1"},
     "frames decode": {"protocol": "xbee", "frames": ["7e 00 02 8a 00 75"], "api_mode": "1"},
+    "ground": {"radio": "udp://127.255.255.255:24999", "keys": "{d}/keys", "http_port": "0",
+               "seconds": "0.1"},
+    "cmd": {"code": "takeoff", "radio": "udp://127.255.255.255:24999", "keys": "{d}/keys",
+            "timeout": "0.1", "listen": "0"},
 }  # fmt: skip
 
 

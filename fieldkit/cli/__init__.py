@@ -4,8 +4,9 @@ One module per command group (`buzz`: compile, run, asm, disasm; `sim`: sim run,
 sweep; `node`; `vehicle_sim`; `sitl`; `update`; `keys`: keys init; `patch`: patch apply;
 `bag`: bag info, plot, from-tlog; `replay`: a recorded flight into a fresh node; `deploy`:
 the node as a systemd service; `doctor`: the field preflight; `frames`: frames decode, the
-protocol inspector), `errors` for the one way errors are reported and the exit-code rule,
-`output` for where results go.
+protocol inspector; `ground`: the ground station and its page, `cmd`: one operator command),
+`errors` for the one way errors are reported and the exit-code rule, `output` for where
+results go.
 Library modules never import this package.
 """
 
@@ -22,6 +23,7 @@ from fieldkit.cli import (
     deploy,
     doctor,
     frames,
+    ground,
     keys,
     node,
     patch,
@@ -86,6 +88,8 @@ app.command("replay")(replay.replay_cmd)
 app.command("deploy")(deploy.deploy_cmd)
 app.command("doctor")(doctor.doctor_cmd)
 app.add_typer(frames.app, name="frames")
+app.command("ground")(ground.ground_cmd)
+app.command("cmd")(ground.cmd_cmd)
 
 
 def main() -> None:

@@ -61,7 +61,14 @@ def run_cmd(
     ] = None,
     latency: Annotated[int, typer.Option("--latency", help="Radio latency in ticks.")] = 1,
     range_m: Annotated[float, typer.Option("--range", help="Radio range in metres.")] = 500.0,
-    seconds: Annotated[float, typer.Option("--seconds", help="Simulated seconds.")] = 60.0,
+    seconds: Annotated[
+        float | None,
+        typer.Option(
+            "--seconds",
+            help="Simulated seconds (default 60; with --ground, until Ctrl-C).",
+            show_default=False,
+        ),
+    ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of every random draw.")] = 0,
     command: CommandOption = None,
     profile: Annotated[str, typer.Option("--profile", help="Device profile.")] = "solo",
@@ -100,6 +107,18 @@ def run_cmd(
             "command, flood. summary.json's security says what it sent and what was accepted.",
         ),
     ] = None,
+    ground: Annotated[
+        bool,
+        typer.Option(
+            "--ground",
+            help="Run in real time with a ground station beside robot 1: its page on "
+            "127.0.0.1 and a UDP gateway onto the simulated radio (docs/ground.md).",
+        ),
+    ] = False,
+    ground_port: Annotated[
+        int,
+        typer.Option("--ground-port", metavar="P", help="With --ground: the page's port."),
+    ] = 8080,
 ) -> None:
     """Run SCRIPT on N simulated robots: OUT/summary.json, log.txt, trajectories.csv, plot.png."""
     from fieldkit.errors import FieldkitError
@@ -120,8 +139,14 @@ def run_cmd(
     sim_updates = [
         SimUpdate(u.t, release_for(u, dirs, profile), u.robot, u.script.name) for u in updates
     ]
+    if ground:
+        from fieldkit.cli.ground_sim import ground_keys
+
+        keys = ground_keys(out, keys)
     robot_keys = load_keys(keys) if keys is not None else None
     mode = security_mode(security, robot_keys is not None, _profile_security(profile))
+    if seconds is None:
+        seconds = None if ground else 60.0
     try:
         config = SimConfig(
             script=resources.find_script(script),
@@ -130,7 +155,7 @@ def run_cmd(
             burst=burst,
             latency=latency,
             range_m=range_m,
-            seconds=seconds,
+            seconds=1e6 if seconds is None else seconds,
             seed=seed,
             commands=commands,
             profile=profile,
@@ -143,6 +168,7 @@ def run_cmd(
             swarm_key=None if robot_keys is None else robot_keys.swarm_key,
             attacks=attacks,
             operator_pub=None if robot_keys is None else robot_keys.operator_pub,
+            update_agents=ground,
         )
         sim = Simulation(config)
     except (ConfigError, BuzzCompileError) as e:
@@ -160,8 +186,14 @@ def run_cmd(
 
     recorder = SimRecorder(sim)
     try:
-        with progress_bar(f"simulating {robots} robots", round(seconds * 10)) as advance:
-            sim.run(progress=advance, after_step=recorder.after_step)
+        if ground:
+            from fieldkit.cli.ground_sim import run_with_ground
+
+            run_with_ground(sim, keys, seconds, ground_port, globals_, recorder.after_step)
+        else:
+            assert seconds is not None
+            with progress_bar(f"simulating {robots} robots", round(seconds * 10)) as advance:
+                sim.run(progress=advance, after_step=recorder.after_step)
     finally:
         sim.close_recording()
     for bag in bags:

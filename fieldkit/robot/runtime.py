@@ -44,6 +44,7 @@ from fieldkit.robot.profiles import Profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.safety import Order, Supervisor
 from fieldkit.robot.script_api import V_GROUND, V_UAV, Command, ScriptAPI, Sensors
+from fieldkit.robot.status import StatusGossip, StatusRecord, is_status, status_key
 
 _log = logging.getLogger("fieldkit.robot")
 
@@ -132,8 +133,15 @@ class RobotRuntime:
         self.commands = commands
         #: Operator commands accepted off the radio, run one a tick before any local one.
         self.pending_rc: list[RcCommand] = []
-        #: Command frames to pass on unchanged (`take_relays`), each valid one once.
+        #: Frames to send besides the bundle (`take_relays`): command frames passed on
+        #: unchanged, each valid one once, and this robot's status frames.
         self.relays: list[bytes] = []
+        # Status frames (docs/ground.md): silent until a ground station is heard. Sealed
+        # under a key derived from the bundle key in a signed swarm.
+        sealer = None if security is None else security.sealer
+        self.status_gossip = StatusGossip(
+            robot_id, None if sealer is None else status_key(sealer.key.secret)
+        )
         self.supervisor = Supervisor(profile, frame)
         self.heard: nb.HeardTable = {}
         self.timeout = nb.timeout_ticks(profile.node.loop_rate_hz)
@@ -268,7 +276,11 @@ class RobotRuntime:
         """A bundle's bytes off the radio; the sender's position is the bundle's GPS unless
         the host knows better (`where`: east, north). A bad bundle costs a counter; with
         `security`, nothing it drops (unsigned, forged, replayed) is decoded at all.
-        An operator's command frame (type 17) goes to the command gate instead."""
+        An operator's command frame (type 17) goes to the command gate instead, a status
+        frame (type 18) to the status table."""
+        if is_status(data):
+            self.status_gossip.receive(data, self.ticks)
+            return
         if is_command(data):
             self._operator_command(data)
             return
@@ -315,7 +327,8 @@ class RobotRuntime:
             )
 
     def take_relays(self) -> list[bytes]:
-        """The command frames to send on unchanged, since the last call."""
+        """The frames to send besides the bundles, since the last call: command frames
+        passed on unchanged, and status frames."""
         relays, self.relays = self.relays, []
         return relays
 
@@ -383,8 +396,33 @@ class RobotRuntime:
             self.observer(
                 TickRecord(self.ticks, sensors, commands, order, self.state, list(events))
             )
+        gossip = self.status_gossip
+        if gossip.active:
+            self._report_status(gossip, sensors)
         self.ticks += 1
         return _new_output(TickOutput, (bundle, messages, order))
+
+    def _report_status(self, gossip: StatusGossip, sensors: Sensors) -> None:
+        """This robot's status record now, and the status frame due, if any."""
+        gate = self.commands
+        battery = sensors.battery_percent
+        gossip.set_own(
+            StatusRecord(
+                robot=self.id,
+                heartbeat=0,
+                battery=round(battery) if 0 <= battery <= 254 else None,
+                flight_status=int(sensors.status),
+                script=self.status.value,
+                alt=sensors.alt,
+                acked=0 if gate is None else gate.last_acted,
+                lat=sensors.lat,
+                lon=sensors.lon,
+                state=self.state,
+            )
+        )
+        frame = gossip.frame(self.ticks)
+        if frame is not None:
+            self.relays.append(frame)
 
     def _seal(self, bundle: bytes) -> bytes:
         """The bundle sealed; b"" (nothing sent) if no counter can be had: a robot that

@@ -27,7 +27,7 @@ import random
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, Protocol, cast
 
 import bvm
 from fieldkit.errors import ConfigError
@@ -151,6 +151,9 @@ class SimConfig:
     attacks: Sequence[str] = ()  # a hostile radio in the swarm's middle (fieldkit/sim/attacker.py)
     # The operator's public key (operator.pub): robots act on radio commands it signed.
     operator_pub: Ed25519PublicKey | None = None
+    # Every robot runs the update agent under these keys (swarm_key, operator_pub) even with
+    # no `updates`: a ground station's gateway may bring a patch (fieldkit/ground).
+    update_agents: bool = False
 
     def validate(self) -> None:
         """Raise ConfigError for any invalid parameter."""
@@ -223,6 +226,17 @@ def _id_range(ids: list[int]) -> str:
     return ", ".join(map(str, ids))
 
 
+class RadioPeer(Protocol):
+    """A radio beside the simulated swarm (`Simulation.peers`): a ground station."""
+
+    def overhear(self, t: int, sender: int, data: bytes, where: tuple[float, float, float]) -> None:
+        """A frame robot `sender` sent from `where` at tick `t`."""
+
+    def transmissions(self, t: int) -> list[tuple[bytes, list[int]]]:
+        """The frames it sends at tick `t`, each with the robots that hear it."""
+        ...
+
+
 class SimRobot:
     """One simulated robot: its runtime (script, supervisor, heard table) and its vehicle."""
 
@@ -290,14 +304,21 @@ class Simulation:
         for c in config.commands:
             self._commands.setdefault(round(c.t / TICK_S), []).append(c)
         self.robots: dict[int, SimRobot] = {}
+        agent_keys = None
+        if config.update_agents and not config.updates and config.swarm_key is not None:
+            from fieldkit.update.keys import RobotKeys
+
+            if config.operator_pub is not None:
+                agent_keys = RobotKeys(config.operator_pub, config.swarm_key)
         self.updates = (
             SwarmUpdates(
                 list(config.updates),
                 Release.from_program(self.program),
                 seed=config.seed,
                 tick_s=TICK_S,
+                keys=agent_keys,
             )
-            if config.updates
+            if config.updates or agent_keys is not None
             else None
         )
         # Each robot's radio-in, bound once: a tick delivers thousands of bundles.
@@ -350,6 +371,10 @@ class Simulation:
             if self.updates is not None:
                 self.updates.attach(runtime, self._sink(rid))
         self.attacker = self._attacker(config) if config.attacks else None
+        #: Radios beside the swarm (a ground station, a UDP gateway: fieldkit/ground): each
+        #: `overhear(t, sender, data, position)`s every frame sent and says what it sends at
+        #: tick t, and to which robots, with `transmissions(t)`.
+        self.peers: list[RadioPeer] = []
 
     def _attacker(self, config: SimConfig) -> Attacker:
         """The hostile radio, at the middle of the swarm's start positions."""
@@ -470,6 +495,8 @@ class Simulation:
                         heard[src] = entry
         if self.attacker is not None:
             self._hostile_in(t)
+        if self.peers:
+            self._peers_in(t)
         rcs: dict[int, RcCommand] = {c.robot: c for c in self._commands.get(t, ())}
         positions = {r.id: r.vehicle.position for r in robots.values()}
         self.radio.set_positions(positions)
@@ -528,6 +555,8 @@ class Simulation:
                     self.radio.broadcast(t, robot.id, frame, note=_UPDATE_FRAME)
                     if self.attacker is not None:
                         self.attacker.record(t, frame, robot.vehicle.position)
+                    for peer in self.peers:
+                        peer.overhear(t, robot.id, frame, robot.vehicle.position)
                     if self.recording is not None:
                         self.recording.sent(robot.id, frame)
             if out.order is not None:
@@ -543,6 +572,8 @@ class Simulation:
         self.radio.broadcast(t, rid, frame)
         if self.recording is not None:
             self.recording.sent(rid, frame)
+        for peer in self.peers:
+            peer.overhear(t, rid, frame, self.robots[rid].vehicle.position)
 
     def record(self, out: Path, *, ros1: bool = False) -> list[Path]:
         """Record every robot's flight from now on, one bag each in `out` (ROS 2 with MCAP,
@@ -591,6 +622,21 @@ class Simulation:
                     accepted[cast(str, kind)] += after - before
                     self.accepted_from_attacker += after - before
 
+    def _peers_in(self, t: int) -> None:
+        """The peers' frames due now, through each receiver's whole radio-in path."""
+        robots = self.robots
+        updaters = self.updates.updaters if self.updates is not None else {}
+        for peer in self.peers:
+            for data, receivers in peer.transmissions(t):
+                for receiver in receivers:
+                    robot = robots.get(receiver)
+                    if robot is None:
+                        continue
+                    updater = updaters.get(receiver)
+                    if updater is not None and updater.receive(data):
+                        continue
+                    robot.runtime.receive_bundle(data)
+
     def _receive_update(self, data: bytes, receivers: Sequence[int]) -> None:
         updaters = self.updates.updaters if self.updates is not None else {}
         for receiver in receivers:
@@ -633,6 +679,8 @@ class Simulation:
             self.recording.sent(robot.id, data)
         if self.attacker is not None:
             self.attacker.record(self.tick, data, robot.vehicle.position)
+        for peer in self.peers:
+            peer.overhear(self.tick, robot.id, data, robot.vehicle.position)
 
     @staticmethod
     def _actuate(robot: SimRobot, order: Order) -> None:

@@ -71,8 +71,10 @@ class SwarmUpdates:
         seed: int,
         tick_s: float,
         config: AgentConfig | None = None,
+        keys: RobotKeys | None = None,
     ) -> None:
-        """`first` is what every robot runs at the start (version 0)."""
+        """`first` is what every robot runs at the start (version 0); `keys` are the swarm's
+        (a ground station sends patches signed by their operator), else made for the run."""
         self.pending = sorted(updates, key=lambda u: u.t)
         self.first = first
         self.seed = seed
@@ -80,7 +82,7 @@ class SwarmUpdates:
         self.config = config or AgentConfig()
         # Keys made for this run: the operator's, and the swarm's every robot holds.
         self.signing_key = Ed25519PrivateKey.generate()
-        self.keys = RobotKeys(self.signing_key.public_key(), os.urandom(32))
+        self.keys = keys or RobotKeys(self.signing_key.public_key(), os.urandom(32))
         self.frame_key = frame_key(self.keys.swarm_key)
         self.updaters: dict[int, RobotUpdater] = {}
         self.records: list[UpdateRecord] = []

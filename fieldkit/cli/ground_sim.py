@@ -1,0 +1,94 @@
+"""`fieldkit sim run ... --ground`: the simulation in real time with a ground station, its
+page and a UDP gateway (fieldkit/ground/live.py); the command-line side."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+
+from fieldkit.cli.errors import fail
+from fieldkit.cli.output import out_dir
+
+if TYPE_CHECKING:
+    from fieldkit.sim.simulator import Simulation
+
+
+def ground_keys(out: Path, keys: Path | None) -> Path:
+    """The keys a ground run signs with: `--keys`, else OUT/keys (made now if absent):
+    operator commands must be signed, so a run with a ground station is a signed run."""
+    if keys is not None:
+        return keys
+    from fieldkit.errors import FieldkitError
+    from fieldkit.update.keys import KeyPaths, init_keys
+
+    out_dir(out)
+    made = out / "keys"
+    paths = KeyPaths(made)
+    if all(p.exists() for p in (paths.operator_key, paths.operator_pub, paths.swarm_key)):
+        return made
+    try:
+        init_keys(made)
+    except FieldkitError as e:
+        raise fail(e) from None
+    typer.echo(
+        f"ground: keys for the run made in {made} (give --keys {made} to fieldkit cmd)", err=True
+    )
+    return made
+
+
+def run_with_ground(
+    sim: Simulation,
+    keys: Path | None,
+    seconds: float | None,
+    http_port: int,
+    globals_: Mapping[str, object],
+    after_step: Callable[[], None],
+) -> None:
+    """Run `sim` in real time with its ground station until `seconds` (None: Ctrl-C or
+    SIGTERM, a normal end: the results are written as for any run)."""
+    from fieldkit.ground.live import attach, run_live
+    from fieldkit.sim.simulator import tuned_collector
+
+    script = sim.config.script.name
+    shape = globals_.get("SHAPE")
+    if shape is None and "task_allocation" in script:
+        shape = "P"
+    root = globals_.get("ROOT_ID", 1)
+    margin = globals_.get("MARGIN", 20.0)
+    try:
+        live = attach(
+            sim,
+            keys,
+            http_port=http_port,
+            shape=None if shape is None else str(shape),
+            root_id=root if isinstance(root, int) else 1,
+            margin=float(margin) if isinstance(margin, int | float) else 20.0,
+        )
+    except OSError as e:
+        raise fail(
+            f"--ground-port {http_port}: cannot serve the page: {e.strerror or e}\n"
+            "  hint: another program uses the port: give --ground-port with another one"
+        ) from None
+    until = "until Ctrl-C" if seconds is None else f"for {seconds:g} s"
+    typer.echo(f"ground: page at {live.server.url}", err=True)
+    typer.echo(
+        f"ground: radio gateway {live.gateway.url} (fieldkit cmd takeoff --radio "
+        f"{live.gateway.url} --keys {keys})",
+        err=True,
+    )
+    typer.echo(f"ground: simulating {sim.config.robots} robots in real time {until}", err=True)
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        with tuned_collector():
+            run_live(sim, seconds, stop=stop, after_step=after_step)
+    except KeyboardInterrupt:
+        typer.echo("ground: stopped", err=True)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        live.close()
