@@ -172,3 +172,57 @@ def test_the_command_line_overrides_the_file(tmp_path: Path) -> None:
     assert o.record is not None and o.record.parent == tmp_path / "bags"
     assert o.record.name.startswith("flight-") and o.record_max_mb == 10.0
     assert json.dumps(str(o.config)) == json.dumps(str(path))
+
+
+KEY = "0123456789abcdef" * 4  # 64 hex digits, like a DJI app key
+
+
+def test_the_dji_app_comes_from_the_config_and_never_shows(tmp_path: Path) -> None:
+    key_file = tmp_path / "dji-app-key"
+    key_file.write_text(KEY.upper() + "\n")
+    key_file.chmod(0o600)
+    config = tmp_path / "f.toml"
+    config.write_text(
+        '[node]\nprofile = "m100"\n[dji]\napp_id = 1012345\napp_key_file = "dji-app-key"\n'
+    )
+    app = load_config(config).dji
+    assert app is not None and app.app_id == 1012345 and app.app_key == KEY.upper()
+    assert KEY.upper() not in repr(app) and KEY.upper() not in repr(load_config(config))
+    config.write_text(f'[node]\nprofile = "m100"\n[dji]\napp_id = 7\napp_key = "{KEY}"\n')
+    assert load_config(config).dji == type(app)(7, KEY)
+    config.write_text('[node]\nprofile = "solo"\n')
+    assert load_config(config).dji is None
+
+
+@pytest.mark.parametrize(
+    ("dji", "problem"),
+    [
+        (f'app_key = "{KEY}"', "dji.app_id: missing"),
+        (f'app_id = 0\napp_key = "{KEY}"', "dji.app_id: must be 1..4294967295"),
+        ("app_id = 1", "dji: give one of app_key and app_key_file"),
+        (f'app_id = 1\napp_key = "{KEY}"\napp_key_file = "k"', "give one of app_key and"),
+        (f'app_id = 1\napp_key = "{KEY[:-1]}z"', "dji.app_key: the DJI app key must be"),
+        (f'app_id = 1\napp_key = "{KEY[:-2]}"', "must be 64 hex digits"),
+        ('app_id = 1\napp_key_file = "nothere"', "dji.app_key_file: "),
+        ('app_id = 1\napp_kye = "x"', "dji.app_kye: unknown key (did you mean app_key?)"),
+    ],
+)
+def test_a_bad_dji_table_says_what_and_never_the_key(
+    tmp_path: Path, dji: str, problem: str
+) -> None:
+    config = tmp_path / "f.toml"
+    config.write_text(f'[node]\nprofile = "m100"\n[dji]\n{dji}\n')
+    with pytest.raises(NodeConfigError) as e:
+        load_config(config)
+    assert problem in str(e.value)
+    assert KEY[:-2] not in str(e.value)
+
+
+def test_a_dji_key_file_others_can_read_is_refused(tmp_path: Path) -> None:
+    key_file = tmp_path / "k"
+    key_file.write_text(KEY)
+    key_file.chmod(0o644)
+    config = tmp_path / "f.toml"
+    config.write_text(f'[dji]\napp_id = 1\napp_key_file = "{key_file}"\n')
+    with pytest.raises(NodeConfigError, match=r"readable by others \(mode 644\): chmod 600"):
+        load_config(config)

@@ -54,6 +54,8 @@ def load_settings(path: Path) -> Settings:
         security=o.security,
         record_dir=None if o.record is None else o.record.parent,
         record_max_mb=o.record_max_mb,
+        gps=o.gps,
+        dji_app=None if o.dji is None else (o.dji.app_id, o.dji.app_key),
     )
 
 

@@ -33,6 +33,7 @@ from fieldkit.cli.options import (
 from fieldkit.cli.output import out_dir, write_json, wrote
 
 if TYPE_CHECKING:
+    from fieldkit.node.config import DjiApp
     from fieldkit.node.journal import Journal
     from fieldkit.node.log import NodeLog
     from fieldkit.node.service import ReloadCheck, ServiceSignals
@@ -261,6 +262,8 @@ class NodeOptions:
     record_keep: tuple[Path, float] | None = None
     #: A Clearpath base's GPS port (--gps): None for the profile's.
     gps: str | None = None
+    #: The DJI app an M100 is activated with (the config's [dji]; never on a command line).
+    dji: DjiApp | None = None
 
 
 def node_options(
@@ -273,6 +276,7 @@ def node_options(
 
     file: dict[str, Any] = {}
     record_settings = None
+    dji = None
     if config is not None:
         try:
             loaded = load_config(config)
@@ -280,6 +284,7 @@ def node_options(
             raise fail(e) from None
         file = dict(loaded.node)
         record_settings = loaded.record
+        dji = loaded.dji
         for key in ("set", "command"):  # checked as the command line's, named by the file
             try:
                 (parse_sets if key == "set" else parse_commands)(file.get(key))
@@ -332,6 +337,7 @@ def node_options(
         config=config,
         record_keep=keep,
         gps=pick("gps"),
+        dji=dji,
     )
 
 
@@ -401,6 +407,7 @@ def _node(o: NodeOptions, signals: ServiceSignals) -> None:
             rid,
             autopilot=o.autopilot,
             gps=o.gps,
+            dji=o.dji,
             radio=link_radio,
             connect_timeout=o.connect_timeout,
             seconds=seconds,
@@ -557,6 +564,7 @@ def _run(
     signals: ServiceSignals | None = None,
     reload_check: ReloadCheck | None = None,
     gps: str | None = None,
+    dji: DjiApp | None = None,
 ) -> None:
     """Connect to the autopilot, run the loop, stop safely; exit 1 if the script is failed.
 
@@ -578,7 +586,14 @@ def _run(
     notifier = Notifier()
     with _logging_to(say):
         try:
-            link = open_link(prof, autopilot, gps=gps, clock=tick_clock.now)
+            link = open_link(
+                prof,
+                autopilot,
+                gps=gps,
+                clock=tick_clock.now,
+                dji_app_id=None if dji is None else dji.app_id,
+                dji_app_key=None if dji is None else dji.app_key,
+            )
         except AutopilotError as e:
             raise fail(e) from None
         recording = (

@@ -185,6 +185,10 @@ class Settings:
     #: Where the node's bags go (the config's record.dir, or node.record's folder).
     record_dir: Path | None = None
     record_max_mb: float = 2048.0
+    #: A Clearpath base's GPS port (node.gps; None: the profile's [gps] port).
+    gps: str | None = None
+    #: The DJI app an M100 is activated with (the config's [dji]), as (app id, app key).
+    dji_app: tuple[int, str] | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -508,6 +512,54 @@ def _enum_name(enum: str, value: int | None, prefix: str) -> str:
 
     entry = mavlink2.enums[enum].get(value) if value is not None else None
     return entry.name.removeprefix(prefix) if entry is not None else str(value)
+
+
+def check_vehicle(
+    profile: Profile,
+    url: str,
+    timeout: float,
+    *,
+    gps: str | None = None,
+    dji_app: tuple[int, str] | None = None,
+) -> CheckResult:
+    """The start-up of a vehicle that does not speak MAVLink (a DJI M100, a Clearpath base)
+    as the node does it, through its own link: heard (DJI: activated, control granted; the
+    Husky's MCU answering) within `timeout`, then a 3D GPS fix within the profile's
+    gps_fix_timeout_s capped by `timeout`."""
+    from fieldkit.vehicle.autopilot import AutopilotError
+    from fieldkit.vehicle.links import open_link
+
+    flavour = profile.autopilot.flavour
+    app_id, app_key = dji_app if dji_app is not None else (None, None)
+    fix = (
+        f"check the wiring and baud of {url} ({profile.autopilot.baud} baud, flavour "
+        f"{flavour})"
+        + ("; for an M100, the [dji] app id and key of the config" if flavour == "dji" else "")
+    )
+    try:
+        link = open_link(profile, url, gps=gps, dji_app_id=app_id, dji_app_key=app_key)
+    except AutopilotError as e:
+        return _fail("autopilot", str(e), fix)
+    try:
+        try:
+            link.wait_heartbeat(timeout)
+        except AutopilotError as e:
+            return _fail("autopilot", str(e), fix)
+        fix_s = min(profile.autopilot.gps_fix_timeout_s, timeout)
+        try:
+            t = link.wait_gps_fix(fix_s)
+        except AutopilotError as e:
+            return _fail(
+                "autopilot", f"{flavour} vehicle on {url} answers, but {e}", _no_fix(profile)
+            )
+    finally:
+        link.close()
+    sats = "?" if t.satellites is None else str(t.satellites)
+    return _ok(
+        "autopilot",
+        f"{flavour} vehicle on {url}: mode {t.mode}, {'armed' if t.armed else 'disarmed'}, "
+        f"GPS fix type {t.gps_fix_type}, {sats} satellites",
+    )
 
 
 def check_autopilot(
@@ -1129,7 +1181,13 @@ def run_checks(
     if r is None:
         assert settings is not None and profile is not None
         url, _ = autopilot_url(settings, profile)
-        r, offset = check_autopilot(profile, url, timeout, wall=now)
+        if profile.autopilot.flavour in ("dji", "clearpath"):  # no MAVLink, no SYSTEM_TIME
+            r, offset = (
+                check_vehicle(profile, url, timeout, gps=settings.gps, dji_app=settings.dji_app),
+                None,
+            )
+        else:
+            r, offset = check_autopilot(profile, url, timeout, wall=now)
         autopilot_said = (
             "not compared: the autopilot sent no SYSTEM_TIME with a GPS time"
             if r.passed

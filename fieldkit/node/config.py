@@ -17,6 +17,10 @@ A deployed robot's service runs `fieldkit node --config /etc/fieldkit/fieldkit.t
     max_mb = 2048                # one flight's cap (as --record-max-mb)
     keep_mb = 8192               # the folder's cap: the oldest flights go first
 
+    [dji]                        # an M100 (flavour dji): the developer's app, never logged
+    app_id = 1012345
+    app_key_file = "/etc/fieldkit/dji-app-key"   # 64 hex digits; or app_key = "..."
+
 The command line overrides the file, option by option (`--set` name by name). Relative paths
 are relative to the file's folder. Every problem of a file is reported at once, one per line,
 as `FILE: node.robot_id: must be an integer, got "3a"`, like a profile's; an unknown key is
@@ -56,12 +60,21 @@ class RecordSettings:
 
 
 @dataclass(frozen=True)
+class DjiApp:
+    """The `[dji]` table: the developer's app id and app key the M100 is activated with."""
+
+    app_id: int
+    app_key: str = field(repr=False)  # a secret: never in a repr, a log or an error
+
+
+@dataclass(frozen=True)
 class NodeConfig:
     """A checked config file: `node` holds the `[node]` options given (others are absent)."""
 
     path: Path
     node: Mapping[str, Any] = field(default_factory=dict)
     record: RecordSettings | None = None
+    dji: DjiApp | None = None
 
 
 # ----------------------------------------------------------------------------- schema
@@ -128,7 +141,30 @@ PATH_KEYS = frozenset({"script", "out", "record", "state_dir", "keys", "include"
 RECORD_KEYS: dict[str, Check] = {"dir": _string, "max_mb": _positive, "keep_mb": _positive}
 """The `[record]` keys."""
 
-TABLES = {"node": NODE_KEYS, "record": RECORD_KEYS}
+
+def _app_id(v: Any) -> str | None:
+    return _integer(v) or (None if 0 < v <= 0xFFFFFFFF else "must be 1..4294967295")
+
+
+def _app_key(v: Any) -> str | None:
+    from fieldkit.vehicle.dji.crypto import AppKeyError, parse_app_key
+
+    if not isinstance(v, str):
+        return "must be a string of 64 hex digits"
+    try:
+        parse_app_key(v)
+    except AppKeyError as e:
+        return str(e)
+    return None
+
+
+DJI_KEYS: dict[str, Check] = {"app_id": _app_id, "app_key": _app_key, "app_key_file": _string}
+"""The `[dji]` keys: the app key itself, or a file that holds it (kept 0600)."""
+
+SECRET_KEYS = frozenset({("dji", "app_key")})
+"""Values an error message must never repeat."""
+
+TABLES = {"node": NODE_KEYS, "record": RECORD_KEYS, "dji": DJI_KEYS}
 
 
 def _describe(v: Any) -> str:
@@ -166,9 +202,14 @@ def parse_config(data: Mapping[str, Any], *, source: str, base: Path) -> NodeCon
                 continue
             wrong = check(v)
             if wrong is not None:
-                problems.append(f"{source}: {table}.{key}: {wrong}, got {_describe(v)}")
+                got = "" if (table, key) in SECRET_KEYS else f", got {_describe(v)}"
+                problems.append(f"{source}: {table}.{key}: {wrong}{got}")
                 continue
-            if table == "node" and key in PATH_KEYS or (table, key) == ("record", "dir"):
+            if (
+                table == "node"
+                and key in PATH_KEYS
+                or (table, key) in (("record", "dir"), ("dji", "app_key_file"))
+            ):
                 v = [str(base / p) for p in v] if isinstance(v, list) else str(base / v)
             elif isinstance(v, int) and check is _positive:
                 v = float(v)
@@ -182,6 +223,7 @@ def parse_config(data: Mapping[str, Any], *, source: str, base: Path) -> NodeCon
     rec = checked["record"]
     if rec and "dir" not in rec:
         problems.append(f'{source}: record.dir: missing (e.g. dir = "/var/log/fieldkit")')
+    dji = _dji_app(source, checked["dji"], problems)
     if problems:
         raise NodeConfigError(problems)
     record = None
@@ -189,7 +231,40 @@ def parse_config(data: Mapping[str, Any], *, source: str, base: Path) -> NodeCon
         record = RecordSettings(
             dir=Path(rec["dir"]), max_mb=rec.get("max_mb", 2048.0), keep_mb=rec.get("keep_mb")
         )
-    return NodeConfig(path=base, node=node, record=record)
+    return NodeConfig(path=base, node=node, record=record, dji=dji)
+
+
+def _dji_app(source: str, t: dict[str, Any], problems: list[str]) -> DjiApp | None:
+    """The `[dji]` table's app, its key read from `app_key_file` if given there."""
+    if not t:
+        return None
+    if "app_id" not in t:
+        problems.append(f"{source}: dji.app_id: missing (the app id from DJI's developer site)")
+    if ("app_key" in t) == ("app_key_file" in t):
+        problems.append(f"{source}: dji: give one of app_key and app_key_file")
+        return None
+    key = t.get("app_key")
+    if "app_key_file" in t:
+        where = Path(t["app_key_file"])
+        try:
+            mode = where.stat().st_mode
+            key = where.read_text(encoding="ascii").strip()
+        except (OSError, UnicodeDecodeError) as e:
+            reason = e.strerror if isinstance(e, OSError) and e.strerror else "not hex text"
+            problems.append(f"{source}: dji.app_key_file: {where}: {reason}")
+            return None
+        if mode & 0o077:
+            problems.append(
+                f"{source}: dji.app_key_file: {where} is readable by others "
+                f"(mode {mode & 0o777:o}): chmod 600 {where}"
+            )
+        wrong = _app_key(key)
+        if wrong is not None:
+            problems.append(f"{source}: dji.app_key_file: {where}: {wrong}")
+            return None
+    if "app_id" not in t or key is None:
+        return None
+    return DjiApp(app_id=t["app_id"], app_key=key)
 
 
 def load_config(path: Path) -> NodeConfig:
@@ -205,10 +280,12 @@ def load_config(path: Path) -> NodeConfig:
     except tomllib.TOMLDecodeError as e:
         raise NodeConfigError([f"{path}: invalid TOML: {e}"]) from None
     config = parse_config(data, source=str(path), base=path.parent)
-    return NodeConfig(path=path, node=config.node, record=config.record)
+    return NodeConfig(path=path, node=config.node, record=config.record, dji=config.dji)
 
 
 __all__ = [
+    "DJI_KEYS",
+    "DjiApp",
     "NODE_KEYS",
     "NodeConfig",
     "NodeConfigError",
