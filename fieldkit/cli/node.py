@@ -593,6 +593,7 @@ def _run(
                 clock=tick_clock.now,
                 dji_app_id=None if dji is None else dji.app_id,
                 dji_app_key=None if dji is None else dji.app_key,
+                in_tick=lambda: tick_clock.in_tick,
             )
         except AutopilotError as e:
             raise fail(e) from None

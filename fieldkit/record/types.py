@@ -25,10 +25,11 @@ META = "fieldkit_msgs/msg/Meta"
 SERIAL_CHUNK = "fieldkit_msgs/msg/SerialChunk"
 RADIO_FRAME = "fieldkit_msgs/msg/RadioFrame"
 TICK = "fieldkit_msgs/msg/Tick"
+STREAM_SEND = "fieldkit_msgs/msg/StreamSend"
 NAV_SAT_FIX = "sensor_msgs/msg/NavSatFix"
 BATTERY_STATE = "sensor_msgs/msg/BatteryState"
 
-OWN_TYPES = (MAVLINK, META, SERIAL_CHUNK, RADIO_FRAME, TICK)
+OWN_TYPES = (MAVLINK, META, SERIAL_CHUNK, RADIO_FRAME, TICK, STREAM_SEND)
 """The types registered from our `.msg` files."""
 USED_TYPES = (
     *OWN_TYPES,
@@ -91,6 +92,7 @@ __all__ = [
     "OWN_TYPES",
     "RADIO_FRAME",
     "SERIAL_CHUNK",
+    "STREAM_SEND",
     "TICK",
     "USED_TYPES",
     "message_class",
