@@ -36,6 +36,7 @@ import bvm
 from fieldkit.node.autopilot_port import vehicle_port
 from fieldkit.node.clock import TickClock
 from fieldkit.node.node import Node
+from fieldkit.node.startup import start_vehicle
 from fieldkit.record.compare import (
     Decoder,
     Divergence,
@@ -458,7 +459,7 @@ def _replay(
             link.release_on_close = False  # a replay has no aircraft to hand back
         try:
             lines = [_Line(p.master, p.slave_fd) for p in ptys]
-            run = _Replay(flight, link, lines, clock, verify, _decoder(profile, dji))
+            run = _Replay(flight, link, lines, clock, verify, _decoder(profile, dji), profile)
             ticks = run.start(start)
             node = Node(
                 profile,
@@ -501,6 +502,10 @@ class _Start:
         return cls((lat, lon, alt), float(meta["started_s"]), dict(meta["core_time"]))  # type: ignore[arg-type, call-overload]
 
 
+class _StartupOver(AutopilotError):
+    """The recorded start-up bytes are all in, and a start-up wait still waits."""
+
+
 class _Replay:
     """One replay's moving parts: the lines, the radio, the recorder of what the node does."""
 
@@ -512,8 +517,10 @@ class _Replay:
         clock: ReplayClock,
         verify: bool,
         decode: Decoder,
+        profile: Profile,
     ) -> None:
         self.flight = flight
+        self.profile = profile
         self.link = link
         self.lines = lines
         self.clock = clock
@@ -588,16 +595,7 @@ class _Replay:
         given a heartbeat and a position (those ticks are not the node's)."""
         link, flight = self.link, self.flight
         if start is not None:
-            # Chunk by chunk, the link polled before each as the node's start-up polled it:
-            # a core that answers what it reads (an M100's activation, whose ACKs match by
-            # sequence number) has sent each request before its answer comes.
-            for chunk in flight.startup_rx:
-                link.poll(0.0)
-                self._poll_fed([[chunk]], "start-up")
-            if flight.startup_gps_rx and len(self.lines) > 1:
-                self._poll_fed([[], flight.startup_gps_rx], "start-up (GPS)")
-            link.poll(0.0)
-            self._drain()
+            self._startup(flight)
             link.drain_events()
             link.set_time_state(start.core_time)
             self.home = start.home
@@ -620,6 +618,35 @@ class _Replay:
             finally:
                 self.clock.end_tick()
         raise ReplayError("the autopilot log never gives a heartbeat and a GPS position")
+
+    def _startup(self, flight: Flight) -> None:
+        """The node's own start-up (`start_vehicle`) on the recorded start-up bytes: each
+        time one of its waits would wait, the next recorded read of each line comes in. So
+        the link sends what the recorded node sent, in the same order, and a core whose
+        answers match by sequence number (an M100's activation and authority) has sent each
+        request before its answer arrives. Reads left over are fed after it."""
+        queues = [list(flight.startup_rx), list(flight.startup_gps_rx)][: len(self.lines)]
+        fed = [0]  # bytes handed in by the last idle() and not yet read
+
+        def idle() -> None:
+            parts = [[q.pop(0)] if q else [] for q in queues]
+            if not any(parts):
+                raise _StartupOver("the recorded start-up bytes ran out")
+            self.consumed = 0
+            fed[0] = self._feed(parts)
+
+        try:
+            start_vehicle(self.link, self.profile, 30.0, lambda _line: None, idle=idle,
+                          poll_interval=0.0)  # fmt: skip
+        except AutopilotError as e:
+            raise ReplayError(
+                f"start-up: the recorded node's start-up does not replay on its bytes ({e})"
+            ) from None
+        self._read_all(fed[0], "start-up")
+        while any(queues):
+            self._poll_fed([[q.pop(0)] if q else [] for q in queues], "start-up")
+        self.link.poll(0.0)
+        self._drain()
 
     def _stream(self, tick: FlightTick) -> None:
         """The frames the recorded link's thread sent before this tick, sent again at their
