@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Protocol
 import bvm
 from bvm.digest import state_digest
 from fieldkit.node.clock import TickClock
+from fieldkit.node.health import LinkHealth, ReportsLinkHealth, radio_health
 from fieldkit.node.log import NodeLog
 from fieldkit.radio.base import RadioLink
 from fieldkit.robot import geo
@@ -335,17 +336,34 @@ class Node:
         failsafe = runtime.supervisor.failsafe
         radio = self.radio.stats if self.radio is not None else Counter()
         frames_in = radio.get("frames_in", 0) + radio.get("datagrams_in", 0)
+        losses = [
+            h.status(name)
+            for name, h in (("autopilot", self.autopilot_health()), ("radio", self.radio_health()))
+        ]
         return (
             f"tick {runtime.ticks}, state {state}, {heard} neighbours, "
             f"autopilot heartbeat {t.heartbeat_age_s:.1f} s ago, radio {frames_in} frames in"
+            + "".join(f", {loss}" for loss in losses if loss is not None)
             + (f", failsafe {failsafe}" if failsafe else "")
             + (f", {self.late_ticks} late ticks" if self.late_ticks else "")
         )
+
+    def autopilot_health(self) -> LinkHealth:
+        """The autopilot device's losses (none for a vehicle that cannot lose one)."""
+        vehicle = self.vehicle
+        if isinstance(vehicle, ReportsLinkHealth):
+            return vehicle.link_health(self.clock())
+        return LinkHealth()
+
+    def radio_health(self) -> LinkHealth:
+        """The radio device's losses (an XBee's; none for a UDP radio or no radio)."""
+        return radio_health(self.radio)
 
     def summary(self) -> dict[str, object]:
         """What `--out DIR` writes to summary.json."""
         messages, bad = self.vehicle.counters()
         radio = self.radio.stats if self.radio is not None else Counter()
+        autopilot, radio_loss = self.autopilot_health(), self.radio_health()
         runtime = self.runtime
         return {
             "robot_id": self.robot_id,
@@ -357,6 +375,13 @@ class Node:
             "radio_frames_in": radio.get("frames_in", 0) + radio.get("datagrams_in", 0),
             "radio_frames_out": radio.get("frames_out", 0) + radio.get("datagrams_out", 0),
             "radio_bad_frames": radio.get("bad_frames", 0) + radio.get("bad_datagrams", 0),
+            # Device loss (a loose cable): outages, seconds down in all, what was dropped.
+            "autopilot_outages": autopilot.outages,
+            "autopilot_down_s": round(autopilot.down_s, 3),
+            "autopilot_bytes_dropped": autopilot.dropped,
+            "radio_outages": radio_loss.outages,
+            "radio_down_s": round(radio_loss.down_s, 3),
+            "radio_frames_dropped_down": radio_loss.dropped,
             "bundle_errors": runtime.counters["bundle_errors"],
             "decode_errors": runtime.vm.counters["decode_errors"],
             "errors": [runtime.error] if runtime.error is not None else [],
