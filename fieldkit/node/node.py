@@ -3,6 +3,7 @@
 The tick itself is the robot's (`fieldkit.robot.RobotRuntime`, the same in the simulator);
 the node feeds it, in this order:
 
+    outbox      an originator's new patch file (`--update-outbox`) -> the update agent
     radio in    bundles heard since the last tick -> the runtime
     sensors     the vehicle's telemetry -> `Sensors`, plus any remote-control code now due
     step, radio out, actuators: the runtime's tick -> one bundle to the radio, at most one
