@@ -68,7 +68,7 @@ def test_info_of_a_recording(tmp_path: Path) -> None:
     assert topics["/fieldkit/meta"] == (1, "fieldkit_msgs/msg/Meta")
     assert topics["/mavlink/from"][1] == "mavros_msgs/msg/Mavlink"
     assert topics["/fix"] == (30, "sensor_msgs/msg/NavSatFix")
-    assert len(topics) == 10
+    assert len(topics) == 11 and topics["/update/outbox"] == (0, "fieldkit_msgs/msg/OutboxPatch")
     assert int(f["messages"]) == sum(n for n, _ in topics.values())
     assert "repaired" not in f
 

@@ -36,6 +36,7 @@ import bvm
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.clock import TickClock
 from fieldkit.node.node import Node
+from fieldkit.node.outbox import RecordedOutbox
 from fieldkit.record.compare import Divergence, ReplayError, ReplayReport, compare_tick
 from fieldkit.record.flight import Flight, FlightRecorder, FlightTick
 from fieldkit.record.restore import recorded_profile, recorded_security
@@ -199,6 +200,7 @@ def recording_meta(
             "radio": node.radio is not None,
             "started_unix_ns": node.tick_clock.wall(),
         }
+        | ({} if node.outbox is None else {"update_outbox": node.outbox.name})
         | _security_meta(node)
         | _update_meta(node)
     )
@@ -342,6 +344,12 @@ def _replay(
         try:
             run = _Replay(flight, link, _Line(pty.master, pty.slave_fd), clock, verify)
             ticks = run.start(start)
+            outbox = _recorded_outbox(flight, ticks)
+            if outbox is not None and store is None:
+                raise ReplayError(
+                    "the recorded node read patches from its outbox, but the recording says "
+                    "nothing of its version store: it cannot be replayed"
+                )
             node = Node(
                 profile,
                 program,
@@ -359,12 +367,21 @@ def _replay(
                 command_gate=gate,
                 store=store,
                 keys=keys if store is not None else None,
+                outbox=outbox,
             )
             return run.ticks(node, ticks, speed, progress)
         finally:
             link.close()
     finally:
         pty.close()
+
+
+def _recorded_outbox(flight: Flight, ticks: list[FlightTick]) -> RecordedOutbox | None:
+    """The patches the recorded node read from its outbox, by tick (None: it read none)."""
+    patches = {t.tick: t.outbox for t in ticks if t.outbox}
+    if not patches:
+        return None
+    return RecordedOutbox(patches, str(flight.meta.get("update_outbox", "the recorded outbox")))
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,8 @@ A `Flight` is what a recording holds and what a replay needs (docs/recording.md)
     profile_toml  the device profile, as text
     bo, bdb, bpos the script as it ran
     startup_rx/tx the autopilot's bytes before the first tick (heartbeat, streams, GPS fix)
-    ticks         per tick: its time, the radio frames in and out, the autopilot's bytes in
+    ticks         per tick: its time, the radio frames in and out, the patches read from the
+                  outbox (an originator's), the autopilot's bytes in
                   and out, the script-state digest, the state, the order, the supervisor's
                   events, the script's lines, the sensors
 
@@ -58,6 +59,8 @@ class FlightTick:
     #: from a node.
     radio_where: list[tuple[float, float]] = field(default_factory=list)
     radio_out: list[bytes] = field(default_factory=list)
+    #: Patches the node read from its outbox at the start of the tick (`--update-outbox`).
+    outbox: list[bytes] = field(default_factory=list)
     autopilot_rx: list[bytes] = field(default_factory=list)
     autopilot_tx: list[bytes] = field(default_factory=list)
     digest: bytes = b""
@@ -141,6 +144,11 @@ class FlightRecorder:
         """A frame the node sent."""
         assert self.current is not None
         self.current.radio_out.append(bytes(data))
+
+    def outbox_in(self, data: bytes) -> None:
+        """A patch the node read from its outbox."""
+        assert self.current is not None
+        self.current.outbox.append(bytes(data))
 
     def end_tick(self, record: TickRecord, digest: bytes, log: list[str]) -> None:
         """The tick ran."""
