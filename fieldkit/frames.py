@@ -10,9 +10,11 @@ used (so that `fieldkit --help` loads none of them), and composes them for a str
 
 Protocols now: mavlink (fieldkit.vehicle.mavlink), xbee (fieldkit.radio.xbee), xbeemav
 (fieldkit.radio.xbeemav), bundle (fieldkit.robot.bundle, inside XbeeMav standard packets
-and XBee frames), nmea (fieldkit.vehicle.nmea, parsed by pynmea2).
+and XBee frames), nmea (fieldkit.vehicle.nmea, parsed by pynmea2), dji
+(fieldkit.vehicle.dji.frame, decrypted with --app-key), clearpath
+(fieldkit.vehicle.clearpath.frame, its payloads by .messages).
 
-To add a protocol (`dji`, `clearpath`, ...):
+To add a protocol:
 
 1. Beside its codec, write
    ``describe_frame(frame: bytes) -> dict[str, Any]``: the fields of exactly one frame as
@@ -28,7 +30,7 @@ To add a protocol (`dji`, `clearpath`, ...):
 2. Register it at the end of this module: two adapters taking `Options` (importing the
    codec inside them), and ``register(Protocol("dji", "one line for --help", describe,
    deframe))``; `text=True` if a frame may also be typed as text, `api_mode=True` if it
-   travels in XBee frames and takes --api-mode.
+   travels in XBee frames and takes --api-mode, `app_key=True` if it takes --app-key.
 3. Add a known good frame to GOOD in tests/test_frames_cli.py (the command-line tests and
    the fuzz test then cover the protocol), and an example to docs/cli.md.
 """
@@ -37,7 +39,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from fieldkit.errors import FrameError
@@ -49,6 +51,8 @@ class Options:
 
     api_mode: int = 1
     """XBee API mode of frames that travel on an XBee serial line: 1 (XbeeMav's) or 2."""
+    app_key: bytes | None = field(default=None, repr=False)
+    """The 32 bytes of a DJI app key, to decrypt encrypted frames (never shown)."""
 
 
 Describe = Callable[[bytes, Options], dict[str, Any]]
@@ -69,6 +73,8 @@ class Protocol:
     """Frames may be typed as text (a NMEA sentence) where they are not hex."""
     api_mode: bool = False
     """Frames travel in XBee API frames: --api-mode applies."""
+    app_key: bool = False
+    """Frames may be AES-encrypted with a DJI app key: --app-key applies."""
 
 
 PROTOCOLS: dict[str, Protocol] = {}
@@ -200,6 +206,39 @@ def _nmea_deframe(
     return nmea.deframe(chunks, stats)
 
 
+def _dji_cipher(options: Options) -> Any:
+    """The AES cipher of --app-key, or None (encrypted frames then show their ciphertext)."""
+    from fieldkit.vehicle.dji.crypto import FrameCipher
+
+    return None if options.app_key is None else FrameCipher(options.app_key)
+
+
+def _dji_describe(frame: bytes, options: Options) -> dict[str, Any]:
+    from fieldkit.vehicle.dji import frame as dji
+
+    return dji.describe_frame(frame, _dji_cipher(options))
+
+
+def _dji_deframe(chunks: Iterable[bytes], options: Options, stats: Counter[str]) -> Iterator[bytes]:
+    from fieldkit.vehicle.dji import frame as dji
+
+    return dji.deframe(chunks, stats, _dji_cipher(options))
+
+
+def _clearpath_describe(frame: bytes, options: Options) -> dict[str, Any]:
+    from fieldkit.vehicle.clearpath import messages
+
+    return messages.describe_frame(frame)
+
+
+def _clearpath_deframe(
+    chunks: Iterable[bytes], options: Options, stats: Counter[str]
+) -> Iterator[bytes]:
+    from fieldkit.vehicle.clearpath import frame as clearpath
+
+    return clearpath.deframe(chunks, stats)
+
+
 register(
     Protocol("mavlink", "MAVLink 1 and 2 frames, pymavlink's 'all' dialect",
              _mavlink_describe, _mavlink_deframe)
@@ -219,6 +258,14 @@ register(
 register(
     Protocol("nmea", "NMEA 0183 sentences via pynmea2, as text or hex", _nmea_describe,
              _nmea_deframe, text=True)
+)  # fmt: skip
+register(
+    Protocol("dji", "DJI OPEN protocol frames (Onboard SDK, M100)", _dji_describe,
+             _dji_deframe, app_key=True)
+)  # fmt: skip
+register(
+    Protocol("clearpath", "Clearpath MCU frames (Husky), payloads decoded",
+             _clearpath_describe, _clearpath_deframe)
 )  # fmt: skip
 
 
