@@ -28,8 +28,9 @@ To add a protocol:
    in a raw byte stream, resynchronising over noise; it adds the frame candidates it
    rejects to ``stats["bad_frames"]``. The end of `chunks` is the end of the stream.
 2. Register it at the end of this module: two adapters taking `Options` (importing the
-   codec inside them), and ``register(Protocol("dji", "one line for --help", describe,
-   deframe))``; `text=True` if a frame may also be typed as text, `api_mode=True` if it
+   codec inside them; ``_plain("module:describe_frame", "module:deframe")`` makes them for
+   a codec that takes no option), and ``register(Protocol("name", "one line for --help",
+   describe, deframe))``; `text=True` if a frame may also be typed as text, `api_mode=True` if it
    travels in XBee frames and takes --api-mode, `app_key=True` if it takes --app-key.
 3. Add a known good frame to GOOD in tests/test_frames_cli.py (the command-line tests and
    the fuzz test then cover the protocol), and an example to docs/cli.md.
@@ -37,6 +38,7 @@ To add a protocol:
 
 from __future__ import annotations
 
+import importlib
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -144,18 +146,26 @@ def decode_stream(
 # ------------------------------------------------------------------ the protocols
 
 
-def _mavlink_describe(frame: bytes, options: Options) -> dict[str, Any]:
-    from fieldkit.vehicle import mavlink
+def _function(where: str) -> Callable[..., Any]:
+    """The function `module:name`, its module imported now."""
+    module, name = where.split(":")
+    found: Callable[..., Any] = getattr(importlib.import_module(module), name)
+    return found
 
-    return mavlink.describe_frame(frame)
 
+def _plain(describe: str, deframe: str) -> tuple[Describe, Deframe]:
+    """Adapters of a codec that takes no option: its `describe(frame)` and `deframe(chunks,
+    stats)`, each given as `module:name` and imported when first called."""
 
-def _mavlink_deframe(
-    chunks: Iterable[bytes], options: Options, stats: Counter[str]
-) -> Iterator[bytes]:
-    from fieldkit.vehicle import mavlink
+    def describe_(frame: bytes, options: Options) -> dict[str, Any]:
+        result: dict[str, Any] = _function(describe)(frame)
+        return result
 
-    return mavlink.deframe(chunks, stats)
+    def deframe_(chunks: Iterable[bytes], options: Options, stats: Counter[str]) -> Iterator[bytes]:
+        frames: Iterator[bytes] = _function(deframe)(chunks, stats)
+        return frames
+
+    return describe_, deframe_
 
 
 def _xbee_describe(frame: bytes, options: Options) -> dict[str, Any]:
@@ -192,20 +202,6 @@ def _bundle_describe(frame: bytes, options: Options) -> dict[str, Any]:
     return bundle.describe(frame)
 
 
-def _nmea_describe(frame: bytes, options: Options) -> dict[str, Any]:
-    from fieldkit.vehicle import nmea
-
-    return nmea.describe_sentence(frame)
-
-
-def _nmea_deframe(
-    chunks: Iterable[bytes], options: Options, stats: Counter[str]
-) -> Iterator[bytes]:
-    from fieldkit.vehicle import nmea
-
-    return nmea.deframe(chunks, stats)
-
-
 def _dji_cipher(options: Options) -> Any:
     """The AES cipher of --app-key, or None (encrypted frames then show their ciphertext)."""
     from fieldkit.vehicle.dji.crypto import FrameCipher
@@ -225,23 +221,9 @@ def _dji_deframe(chunks: Iterable[bytes], options: Options, stats: Counter[str])
     return dji.deframe(chunks, stats, _dji_cipher(options))
 
 
-def _clearpath_describe(frame: bytes, options: Options) -> dict[str, Any]:
-    from fieldkit.vehicle.clearpath import messages
-
-    return messages.describe_frame(frame)
-
-
-def _clearpath_deframe(
-    chunks: Iterable[bytes], options: Options, stats: Counter[str]
-) -> Iterator[bytes]:
-    from fieldkit.vehicle.clearpath import frame as clearpath
-
-    return clearpath.deframe(chunks, stats)
-
-
 register(
     Protocol("mavlink", "MAVLink 1 and 2 frames, pymavlink's 'all' dialect",
-             _mavlink_describe, _mavlink_deframe)
+             *_plain("fieldkit.vehicle.mavlink:describe_frame", "fieldkit.vehicle.mavlink:deframe"))
 )  # fmt: skip
 register(
     Protocol("xbee", "XBee API frames", _xbee_describe, _xbee_deframe,
@@ -256,8 +238,9 @@ register(
              _bundle_describe, _xbee_deframe, api_mode=True)
 )  # fmt: skip
 register(
-    Protocol("nmea", "NMEA 0183 sentences via pynmea2, as text or hex", _nmea_describe,
-             _nmea_deframe, text=True)
+    Protocol("nmea", "NMEA 0183 sentences via pynmea2, as text or hex",
+             *_plain("fieldkit.vehicle.nmea:describe_sentence", "fieldkit.vehicle.nmea:deframe"),
+             text=True)
 )  # fmt: skip
 register(
     Protocol("dji", "DJI OPEN protocol frames (Onboard SDK, M100)", _dji_describe,
@@ -265,7 +248,8 @@ register(
 )  # fmt: skip
 register(
     Protocol("clearpath", "Clearpath MCU frames (Husky), payloads decoded",
-             _clearpath_describe, _clearpath_deframe)
+             *_plain("fieldkit.vehicle.clearpath.messages:describe_frame",
+                     "fieldkit.vehicle.clearpath.frame:deframe"))
 )  # fmt: skip
 
 
