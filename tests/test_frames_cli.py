@@ -29,7 +29,8 @@ from fieldkit.radio import xbeemav as M
 from fieldkit.robot import bundle as B
 from fieldkit.vehicle.clearpath import frame as CP
 from fieldkit.vehicle.dji import frame as DJI
-from fieldkit.vehicle.dji.crypto import FrameCipher
+from fieldkit.vehicle.dji.crc import crc16, crc32
+from fieldkit.vehicle.dji.crypto import FrameCipher, parse_app_key
 from fieldkit.vehicle.mavlink import new_codec
 from fieldkit.vehicle.sim.dji import TEST_APP_KEY
 
@@ -613,6 +614,27 @@ def test_fuzz_streams_never_raise(protocol: str, noise: list[bytes]) -> None:
     counts = frames.StreamCounts()
     found = list(frames.decode_stream(frames.PROTOCOLS[protocol], chunks, frames.Options(), counts))
     assert counts.frames == len(found) and 0 <= counts.garbage_bytes <= counts.bytes_in
+
+
+@settings(max_examples=300, deadline=None)
+@given(data=st.data())
+def test_fuzz_encrypted_dji_frames_with_and_without_the_key(data: st.DataObject) -> None:
+    """The decrypting path too: mutated encrypted frames, with the key and without."""
+    frame = bytearray(_encrypted())
+    for _ in range(data.draw(st.integers(1, 3))):
+        at = data.draw(st.integers(0, len(frame) - 1))
+        frame[at] = data.draw(st.integers(0, 255))
+    if data.draw(st.booleans()):  # good CRCs: the checks behind them (ENC, padding) run
+        frame[10:12] = crc16(bytes(frame[:10])).to_bytes(2, "little")
+        frame[-4:] = crc32(bytes(frame[:-4])).to_bytes(4, "little")
+    key = parse_app_key(TEST_APP_KEY)
+    for options in (frames.Options(), frames.Options(app_key=key)):
+        try:
+            described = frames.PROTOCOLS["dji"].describe(bytes(frame), options)
+        except FrameError as e:
+            assert 0 <= e.offset <= len(frame)
+        else:
+            json.dumps(described, allow_nan=False)
 
 
 @settings(max_examples=300, deadline=None)
