@@ -154,13 +154,14 @@ def test_cmd_through_the_sitl_ground_gateway_reaches_every_node(tmp_path: Path) 
         assert done.returncode == 0, done.stderr
         assert "takeoff (22) to all: acknowledged by 1, 2, 3" in done.stdout, done.stdout
         sitl.send_signal(signal.SIGINT)  # a normal end: every node stops, results written
-        rest, _ = sitl.communicate(timeout=180)
+        last, rest = sitl.communicate(timeout=180)
     finally:
         if sitl.poll() is None:
             sitl.kill()
             sitl.wait()
     assert sitl.returncode == 0, "".join(seen) + rest
     assert f"wrote {out / 'summary.json'}" in rest
+    assert last.startswith("sitl: 3 robots; ") and last.rstrip().endswith(f"results in {out}")
     assert "127.0.0.1" in page
     summary = json.loads((out / "summary.json").read_text())
     assert summary["not_finished"] == [] and summary["seconds"] > 0
