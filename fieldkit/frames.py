@@ -10,9 +10,11 @@ used (so that `fieldkit --help` loads none of them), and composes them for a str
 
 Protocols now: mavlink (fieldkit.vehicle.mavlink), xbee (fieldkit.radio.xbee), xbeemav
 (fieldkit.radio.xbeemav), bundle (fieldkit.robot.bundle, inside XbeeMav standard packets
-and XBee frames), nmea (fieldkit.vehicle.nmea, parsed by pynmea2).
+and XBee frames), nmea (fieldkit.vehicle.nmea, parsed by pynmea2), dji
+(fieldkit.vehicle.dji.frame, decrypted with --app-key), clearpath
+(fieldkit.vehicle.clearpath.frame, its payloads by .messages).
 
-To add a protocol (`dji`, `clearpath`, ...):
+To add a protocol:
 
 1. Beside its codec, write
    ``describe_frame(frame: bytes) -> dict[str, Any]``: the fields of exactly one frame as
@@ -26,18 +28,20 @@ To add a protocol (`dji`, `clearpath`, ...):
    in a raw byte stream, resynchronising over noise; it adds the frame candidates it
    rejects to ``stats["bad_frames"]``. The end of `chunks` is the end of the stream.
 2. Register it at the end of this module: two adapters taking `Options` (importing the
-   codec inside them), and ``register(Protocol("dji", "one line for --help", describe,
-   deframe))``; `text=True` if a frame may also be typed as text, `api_mode=True` if it
-   travels in XBee frames and takes --api-mode.
+   codec inside them; ``_plain("module:describe_frame", "module:deframe")`` makes them for
+   a codec that takes no option), and ``register(Protocol("name", "one line for --help",
+   describe, deframe))``; `text=True` if a frame may also be typed as text, `api_mode=True` if it
+   travels in XBee frames and takes --api-mode, `app_key=True` if it takes --app-key.
 3. Add a known good frame to GOOD in tests/test_frames_cli.py (the command-line tests and
    the fuzz test then cover the protocol), and an example to docs/cli.md.
 """
 
 from __future__ import annotations
 
+import importlib
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from fieldkit.errors import FrameError
@@ -49,6 +53,8 @@ class Options:
 
     api_mode: int = 1
     """XBee API mode of frames that travel on an XBee serial line: 1 (XbeeMav's) or 2."""
+    app_key: bytes | None = field(default=None, repr=False)
+    """The 32 bytes of a DJI app key, to decrypt encrypted frames (never shown)."""
 
 
 Describe = Callable[[bytes, Options], dict[str, Any]]
@@ -69,6 +75,8 @@ class Protocol:
     """Frames may be typed as text (a NMEA sentence) where they are not hex."""
     api_mode: bool = False
     """Frames travel in XBee API frames: --api-mode applies."""
+    app_key: bool = False
+    """Frames may be AES-encrypted with a DJI app key: --app-key applies."""
 
 
 PROTOCOLS: dict[str, Protocol] = {}
@@ -138,18 +146,26 @@ def decode_stream(
 # ------------------------------------------------------------------ the protocols
 
 
-def _mavlink_describe(frame: bytes, options: Options) -> dict[str, Any]:
-    from fieldkit.vehicle import mavlink
+def _function(where: str) -> Callable[..., Any]:
+    """The function `module:name`, its module imported now."""
+    module, name = where.split(":")
+    found: Callable[..., Any] = getattr(importlib.import_module(module), name)
+    return found
 
-    return mavlink.describe_frame(frame)
 
+def _plain(describe: str, deframe: str) -> tuple[Describe, Deframe]:
+    """Adapters of a codec that takes no option: its `describe(frame)` and `deframe(chunks,
+    stats)`, each given as `module:name` and imported when first called."""
 
-def _mavlink_deframe(
-    chunks: Iterable[bytes], options: Options, stats: Counter[str]
-) -> Iterator[bytes]:
-    from fieldkit.vehicle import mavlink
+    def describe_(frame: bytes, options: Options) -> dict[str, Any]:
+        result: dict[str, Any] = _function(describe)(frame)
+        return result
 
-    return mavlink.deframe(chunks, stats)
+    def deframe_(chunks: Iterable[bytes], options: Options, stats: Counter[str]) -> Iterator[bytes]:
+        frames: Iterator[bytes] = _function(deframe)(chunks, stats)
+        return frames
+
+    return describe_, deframe_
 
 
 def _xbee_describe(frame: bytes, options: Options) -> dict[str, Any]:
@@ -186,23 +202,28 @@ def _bundle_describe(frame: bytes, options: Options) -> dict[str, Any]:
     return bundle.describe(frame)
 
 
-def _nmea_describe(frame: bytes, options: Options) -> dict[str, Any]:
-    from fieldkit.vehicle import nmea
+def _dji_cipher(options: Options) -> Any:
+    """The AES cipher of --app-key, or None (encrypted frames then show their ciphertext)."""
+    from fieldkit.vehicle.dji.crypto import FrameCipher
 
-    return nmea.describe_sentence(frame)
+    return None if options.app_key is None else FrameCipher(options.app_key)
 
 
-def _nmea_deframe(
-    chunks: Iterable[bytes], options: Options, stats: Counter[str]
-) -> Iterator[bytes]:
-    from fieldkit.vehicle import nmea
+def _dji_describe(frame: bytes, options: Options) -> dict[str, Any]:
+    from fieldkit.vehicle.dji import frame as dji
 
-    return nmea.deframe(chunks, stats)
+    return dji.describe_frame(frame, _dji_cipher(options))
+
+
+def _dji_deframe(chunks: Iterable[bytes], options: Options, stats: Counter[str]) -> Iterator[bytes]:
+    from fieldkit.vehicle.dji import frame as dji
+
+    return dji.deframe(chunks, stats, _dji_cipher(options))
 
 
 register(
     Protocol("mavlink", "MAVLink 1 and 2 frames, pymavlink's 'all' dialect",
-             _mavlink_describe, _mavlink_deframe)
+             *_plain("fieldkit.vehicle.mavlink:describe_frame", "fieldkit.vehicle.mavlink:deframe"))
 )  # fmt: skip
 register(
     Protocol("xbee", "XBee API frames", _xbee_describe, _xbee_deframe,
@@ -217,8 +238,18 @@ register(
              _bundle_describe, _xbee_deframe, api_mode=True)
 )  # fmt: skip
 register(
-    Protocol("nmea", "NMEA 0183 sentences via pynmea2, as text or hex", _nmea_describe,
-             _nmea_deframe, text=True)
+    Protocol("nmea", "NMEA 0183 sentences via pynmea2, as text or hex",
+             *_plain("fieldkit.vehicle.nmea:describe_sentence", "fieldkit.vehicle.nmea:deframe"),
+             text=True)
+)  # fmt: skip
+register(
+    Protocol("dji", "DJI OPEN protocol frames (Onboard SDK, M100)", _dji_describe,
+             _dji_deframe, app_key=True)
+)  # fmt: skip
+register(
+    Protocol("clearpath", "Clearpath MCU frames (Husky), payloads decoded",
+             *_plain("fieldkit.vehicle.clearpath.messages:describe_frame",
+                     "fieldkit.vehicle.clearpath.frame:deframe"))
 )  # fmt: skip
 
 

@@ -1,13 +1,17 @@
-"""Software in the loop: N simulated autopilots, N real field nodes, one simulated radio.
+"""Software in the loop: N simulated vehicles, N real field nodes, one simulated radio.
 
     fieldkit sitl --robots 6 --script buzz_scripts/task_allocation.bzz --out run/
+    fieldkit sitl --team solo:2,husky:1,m100:1,spiri:1 --script task_allocation.bzz --out run/
 
 Every robot is the real thing but its vehicle and its radio:
 
-* a `SimVehicle` (fieldkit's ArduPilot-like MAVLink vehicle) on a pseudo-terminal, stepped in
-  real time here;
-* a `fieldkit node` process, exactly as on the robot's companion computer, opening that pty
-  as its autopilot and a second pty as its XBee (API mode 1, XbeeMav packets);
+* the simulated machine its profile's `autopilot.flavour` needs
+  (`fieldkit.vehicle.sim.machine`: ArduPilot for the Solo, PX4 for the Spiri, the DJI M100's
+  flight controller, the Husky's MCU and GPS) on pseudo-terminals, stepped in real time here;
+* a `fieldkit node` process, exactly as on the robot's companion computer, opening those ptys
+  as its autopilot (and a Husky's GPS) and another pty as its XBee (API mode 1, XbeeMav
+  packets); an M100's node gets the test DJI app from a config file's `[dji]` table, as a
+  deployed node does;
 * the `RadioRelay` here: it reads each node's XBee transmit frames (0x10) and hands them as
   receive frames (0x90) to the robots in range, dropping each with the simulator's
   probability. So the bytes between nodes are the bytes on the air in the field.
@@ -15,6 +19,11 @@ Every robot is the real thing but its vehicle and its radio:
 The vehicles hold their GPS fix until every node is up and talking to its autopilot, then
 all get it at once: nodes wait for a fix before their loop starts, so the swarm starts
 together however long each process took to start.
+
+With `ground`, the operator's ground station (`fieldkit.ground`) stands beside robot 1 on the
+same relay, with its page and a UDP gateway (`fieldkit cmd --radio`); a run without a length
+then lasts until `stop` is set (the command line's Ctrl-C or SIGTERM): every node is told to
+stop (SIGTERM, its safe stop) and the results are written as for any run.
 
 Real time, real processes: runs are not reproducible bit for bit (that is the simulator's job).
 
@@ -34,18 +43,21 @@ import os
 import random
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fieldkit.errors import FieldkitError
 from fieldkit.node.log import wall_stamp
 from fieldkit.radio.xbee import FrameReader, TransmitRequest, receive_packet
+from fieldkit.radio.xbeemav import XbeeMav
 from fieldkit.results import write_json
 from fieldkit.robot import geo
 from fieldkit.robot.profiles import Profile
@@ -55,7 +67,10 @@ from fieldkit.update.operator import GROUND_ID, OperatorSession
 from fieldkit.update.release import Release
 from fieldkit.vehicle.pty import PtyPair, open_pty
 from fieldkit.vehicle.sim.ardupilot import DEFAULT_HOME
-from fieldkit.vehicle.sim.vehicle import SimVehicle, open_sim_vehicle
+from fieldkit.vehicle.sim.machine import SimMachine, open_sim_machine
+
+if TYPE_CHECKING:
+    from fieldkit.ground.live import LiveGround
 
 #: Where robot i's XBee serial numbers start (Digi's OUI prefix, as real modules have).
 SERIAL_BASE = 0x0013A20000000000
@@ -112,17 +127,19 @@ class NodeOutput:
 
 @dataclass
 class SitlRobot:
-    """One robot of the run: its vehicle, its ptys, its node process."""
+    """One robot of the run: its profile, its simulated machine (on ptys of its own), its
+    radio's pty, its node process."""
 
     id: int
-    vehicle: SimVehicle
-    autopilot_pty: PtyPair
+    profile: Profile
+    machine: SimMachine
     radio_pty: PtyPair
     reader: FrameReader
     out: Path
     process: subprocess.Popen[bytes] | None = None
     bytes_sent: int = 0
     output: NodeOutput | None = None
+    where: tuple[float, float, float] = (0.0, 0.0, 0.0)  # east, north, up in the run's frame
 
 
 class RadioRelay:
@@ -135,6 +152,7 @@ class RadioRelay:
         range_m: float,
         seed: int,
         corrupt: float = 0.0,
+        frame: geo.LocalFrame | None = None,
     ) -> None:
         self.robots = list(robots)
         self.drop = drop
@@ -143,9 +161,21 @@ class RadioRelay:
         self.rng = random.Random(seed)
         self.stats: Counter[str] = Counter()
         self.ground: GroundStation | None = None  # an operator's radio beside one robot
+        self.live: LivePlace | None = None  # the ground station of --ground, at a place
+        # Where everyone is, in one frame: each machine's own frame is its own home's.
+        self.frame = frame or geo.LocalFrame(DEFAULT_HOME[0], DEFAULT_HOME[1], 0.0)
 
-    def service(self) -> None:
-        """Forward every complete transmit frame the nodes wrote since the last call."""
+    def locate(self) -> None:
+        """Read every robot's position once (the range checks of a service use it)."""
+        for r in self.robots:
+            lat, lon, alt = r.machine.position
+            east, north, _ = self.frame.from_gps(lat, lon)
+            r.where = (east, north, alt)
+
+    def service(self, now: float = 0.0) -> None:
+        """Forward every complete transmit frame the nodes wrote since the last call, and
+        what the ground station sends at run time `now`."""
+        self.locate()
         for sender in self.robots:
             try:
                 data = os.read(sender.radio_pty.master, 65536)
@@ -153,22 +183,31 @@ class RadioRelay:
                 continue
             for frame in sender.reader.feed(data):
                 if isinstance(frame, TransmitRequest):
-                    self._forward(sender, frame.rf_data)
+                    self._forward(sender, frame.rf_data, now)
                 else:
                     self.stats["other_frames"] += 1
+        if self.live is not None:
+            for rf in self.live.transmissions(now):
+                self._deliver(self.live.id, self.live.where, rf, None)
 
-    def _forward(self, sender: SitlRobot, rf: bytes) -> None:
+    def _forward(self, sender: SitlRobot, rf: bytes, now: float) -> None:
         sender.bytes_sent += len(rf)
         if self.ground is not None and sender is self.ground.robot:
             self.ground.hear(rf)
+        if self.live is not None and math.dist(sender.where, self.live.where) <= self.range_m:
+            self.live.hear(sender.id, rf, now)
         self.stats["frames"] += 1
-        here = sender.vehicle.vehicle
-        frame = receive_packet(SERIAL_BASE + sender.id, rf)
+        self._deliver(sender.id, sender.where, rf, sender)
+
+    def _deliver(
+        self, sender: int, here: tuple[float, float, float], rf: bytes, skip: SitlRobot | None
+    ) -> None:
+        """`rf` from radio `sender` at `here` to every robot in range, through the loss."""
+        frame = receive_packet(SERIAL_BASE + sender, rf)
         for r in self.robots:
-            if r is sender:
+            if r is skip:
                 continue
-            there = r.vehicle.vehicle
-            if math.dist((here.x, here.y, here.z), (there.x, there.y, there.z)) > self.range_m:
+            if math.dist(here, r.where) > self.range_m:
                 continue
             if self.drop and self.rng.random() < self.drop:
                 self.stats["dropped"] += 1
@@ -183,6 +222,48 @@ class RadioRelay:
                 self.stats["delivered"] += 1
             except (BlockingIOError, OSError):
                 self.stats["overflow"] += 1  # the node is not reading: a full UART drops
+
+
+class LivePlace:
+    """The ground station of `--ground` (`fieldkit.ground.live.LiveGround`: the station, its
+    page, its UDP gateway) at one place of the relay's air, on an XBee of its own (XbeeMav
+    packets, fragments and acks as a real one): it hears the robots in range, and what the
+    station and the gateway send reaches the robots in range."""
+
+    def __init__(self, live: LiveGround, where: tuple[float, float, float]) -> None:
+        self.live = live
+        self.id = live.station.id
+        self.where = where
+        self.xbee = XbeeMav(self.id)
+        self.msgid = 0
+        self.next_tick = 0.0
+        self.unsendable = 0  # frames the gateway brought that no XBee packet can carry
+
+    def hear(self, sender: int, rf: bytes, now: float) -> None:
+        """The RF data robot `sender` sent: to the station and out of the gateway."""
+        data = self.xbee.receive(sender, rf)
+        if data is None:
+            return
+        self.live.station.hear(data, now, sender)
+        self.live.gateway.send(sender, data)
+
+    def transmissions(self, now: float) -> list[bytes]:
+        """The RF data to put on the air at run time `now`: the station's frames (its ticks
+        10 a second), the gateway's, and the XBee's acks, as its pacing lets them go."""
+        frames: list[bytes] = []
+        if now >= self.next_tick:
+            frames += self.live.station.tick(now)
+            self.next_tick += 0.1
+            if self.next_tick <= now:  # late (a loaded machine): on from now, no catching up
+                self.next_tick = now + 0.1
+        frames += self.live.gateway.poll()
+        for f in frames:
+            self.msgid = (self.msgid + 1) & 0xFF
+            try:
+                self.xbee.submit(f, self.msgid)
+            except ValueError:
+                self.unsendable += 1
+        return self.xbee.pump()
 
 
 @dataclass(frozen=True)
@@ -246,7 +327,7 @@ class SitlConfig:
     drop: float = 0.0
     corrupt: float = 0.0  # share of delivered frames with a flipped bit (for tests)
     range_m: float = 500.0
-    seconds: float = 60.0
+    seconds: float | None = 60.0  # None: until `run`'s stop is set
     seed: int = 0
     commands: Sequence[RcCommand] = ()
     include_dirs: Sequence[str] = ()
@@ -259,6 +340,18 @@ class SitlConfig:
     keys: Path | None = None  # a `fieldkit keys init` directory (else --update makes keys)
     record: Path | None = None  # each node records its flight to record/robot{ID}
     ros1: bool = False  # record ROS 1 bags, record/robot{ID}.bag
+    # A heterogeneous team: robot i + 1's profile is team[i] (`robots` of them); empty:
+    # every robot is `profile`.
+    team: Sequence[Profile] = ()
+    ground: LiveGround | None = None  # --ground: the station, page and gateway to place
+
+    def profiles(self) -> list[Profile]:
+        """Each robot's profile, robot 1 first."""
+        if self.team:
+            if len(self.team) != self.robots:
+                raise FieldkitError(f"a team of {len(self.team)} for {self.robots} robots")
+            return list(self.team)
+        return [self.profile] * self.robots
 
 
 def _homes(cfg: SitlConfig) -> list[tuple[float, float]]:
@@ -271,107 +364,110 @@ def _homes(cfg: SitlConfig) -> list[tuple[float, float]]:
     return out
 
 
-def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None) -> dict:
-    """Run the swarm for `cfg.seconds` and return the summary (also written to out/)."""
+def run(
+    cfg: SitlConfig,
+    progress: Callable[[float, float], None] | None = None,
+    *,
+    stop: threading.Event | None = None,
+    say: Callable[[str], None] | None = None,
+) -> dict:
+    """Run the swarm for `cfg.seconds` (None: until `stop` is set) and return the summary
+    (also written to out/). Setting `stop` ends a run early the same way: every node is
+    told to stop (SIGTERM) and writes its summary. `say` hears the run's milestones."""
     cfg.out.mkdir(parents=True, exist_ok=True)
     robots: list[SitlRobot] = []
+    stop = stop if stop is not None else threading.Event()
+    frame = geo.LocalFrame(cfg.home[0], cfg.home[1], 0.0)
+    ran_s = 0.0
     try:
-        for k, home in enumerate(_homes(cfg)):
+        for k, (home, profile) in enumerate(zip(_homes(cfg), cfg.profiles(), strict=True)):
             rid = k + 1
-            ap, radio = open_pty(), open_pty()
-            # The GPS fix is held back until every node is up (see the loop below).
-            vehicle = open_sim_vehicle(
-                cfg.profile,
-                ap.master,
-                home=home,
-                seed=cfg.seed * 1000 + rid,
-                gps_fix_delay_s=math.inf,
-            )
+            radio = open_pty()
+            try:
+                # The GPS fix is held back until every node is up (see the loop below).
+                machine = open_sim_machine(
+                    profile, home=home, seed=cfg.seed * 1000 + rid, hold_fix=True
+                )
+            except BaseException:
+                radio.close()
+                raise
             robots.append(
-                SitlRobot(rid, vehicle, ap, radio, FrameReader(1), cfg.out / f"robot{rid}")
+                SitlRobot(rid, profile, machine, radio, FrameReader(1), cfg.out / f"robot{rid}")
             )
-        relay = RadioRelay(robots, cfg.drop, cfg.range_m, cfg.seed, cfg.corrupt)
+        relay = RadioRelay(robots, cfg.drop, cfg.range_m, cfg.seed, cfg.corrupt, frame)
         updating = _Updating(cfg, robots) if cfg.update is not None else None
         robot_keys = updating.robot_keys if updating is not None else cfg.keys
         if cfg.security == "signed" and robot_keys is None:
             raise FieldkitError("sitl --security signed needs keys: give --keys DIR")
         if updating is not None:
             relay.ground = updating.ground
+        if cfg.ground is not None:
+            from fieldkit.ground.live import BESIDE_M
+
+            relay.locate()
+            east, north, _ = robots[0].where
+            relay.live = LivePlace(cfg.ground, (east - BESIDE_M, north, 0.0))
         for r in robots:
             r.out.mkdir(parents=True, exist_ok=True)
-            argv = [
-                sys.executable,
-                "-m",
-                "fieldkit",
-                "node",
-                "--profile",
-                str(cfg.profile.path or cfg.profile.name),
-                "--script",
-                str(cfg.script),
-                "--autopilot",
-                r.autopilot_pty.slave_path,
-                "--radio",
-                f"serial://{r.radio_pty.slave_path}?baud=230400&api=1&unknown=sysid",
-                "--robot-id",
-                str(r.id),
-                "--seconds",
-                str(cfg.seconds),
-                "--out",
-                str(r.out),
-                "--seed",
-                str(cfg.seed),
-                *(a for d in cfg.include_dirs for a in ("-I", d)),
-                *cfg.extra,
-            ]
-            argv += ["--security", cfg.security]
-            if cfg.record is not None:
-                suffix = ".bag" if cfg.ros1 else ""
-                argv += ["--record", str(cfg.record / f"robot{r.id}{suffix}")]
+            argv = _node_argv(cfg, r)
             if updating is not None or cfg.security == "signed":
                 # Each node's versions and bundle counter, fresh for the run.
                 if updating is None:
                     shutil.rmtree(r.out / "state", ignore_errors=True)
                 argv += ["--state-dir", str(r.out / "state"), "--keys", str(robot_keys)]
-            for name, value in cfg.sets.items():
-                argv += ["--set", f"{name}={value}"]  # the node parses it back the same
-            for c in cfg.commands:
-                if c.robot == r.id:
-                    # Each node gets its own robot's commands, in the one T:ROBOT:CODE form.
-                    argv += ["--command", c.text()]
-            r.process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+            # A process group of its own: a terminal's Ctrl-C reaches this process alone,
+            # which stops every node once, by SIGTERM, as systemd would.
+            r.process = subprocess.Popen(
+                argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, process_group=0
+            )
             assert r.process.stdout is not None
             r.output = NodeOutput(r.id, r.process.stdout.fileno())
         processes = [r.process for r in robots if r.process is not None]
         start = time.monotonic()
         last = start
         released: float | None = None
+        stopping = False
         deadline = start + STARTUP_S
         tracker = _Tracker(cfg, robots)
         while any(p.poll() is None for p in processes):
             now = time.monotonic()
             _read_outputs(robots)
-            if released is None and all(r.vehicle.bytes_received > 0 for r in robots):
-                # Every node is up and has spoken to its autopilot: all get their GPS fix
+            if released is None and all(r.machine.node_heard for r in robots):
+                # Every node is up and has spoken to its vehicle: all get their GPS fix
                 # now, so their loops, and their --seconds, start together however long
                 # each took to start (a loaded machine staggers them by seconds).
                 for r in robots:
-                    r.vehicle.gps_fix_delay_s = 0.0
+                    r.machine.release_fix()
                 released = now
-                deadline = now + cfg.seconds + WIND_DOWN_S
+                deadline = math.inf if cfg.seconds is None else now + cfg.seconds + WIND_DOWN_S
+                if say is not None:
+                    say(f"sitl: every node is up: {len(robots)} robots start now")
+            if stop.is_set() and not stopping:
+                # Asked to stop: each node stops as in the field (its safe stop, its
+                # summary); the vehicles and the radio run on while they do.
+                stopping = True
+                if released is not None:
+                    ran_s = now - released
+                for proc in processes:
+                    if proc.poll() is None:
+                        proc.send_signal(signal.SIGTERM)
+                deadline = min(deadline, now + WIND_DOWN_S)
             if now > deadline:
-                for p in processes:
-                    if p.poll() is None:
-                        p.kill()
+                for proc in processes:
+                    if proc.poll() is None:
+                        proc.kill()
                 break
             for r in robots:
-                r.vehicle.step(now - last)
+                r.machine.step(now - last)
             last = now
-            relay.service()
+            relay.service(now - start)
             if released is not None:
+                if not stopping:
+                    ran_s = now - released
                 if updating is not None:
                     updating.service(now - released)
                 tracker.sample(now - released)
-                if progress is not None:
+                if progress is not None and cfg.seconds is not None:
                     progress(min(now - released, cfg.seconds), cfg.seconds)
             time.sleep(STEP_S)
     finally:
@@ -382,12 +478,62 @@ def run(cfg: SitlConfig, progress: Callable[[float, float], None] | None = None)
             if r.process is not None and r.process.stdout is not None:
                 _read_outputs([r])  # what it printed last, up to the end of its pipe
                 r.process.stdout.close()
-            r.vehicle.close()
-            r.autopilot_pty.close()
+            r.machine.close()
             r.radio_pty.close()
     _write_logs(cfg, robots)
-    write_tracks(tracker.tracks, cfg.out, f"sitl {cfg.script.name}, {cfg.robots} robots")
-    return _summary(cfg, robots, relay, updating)
+    what = f"sitl {cfg.script.name}, {cfg.robots} robots"
+    write_tracks(tracker.tracks, cfg.out, what)
+    seconds = cfg.seconds if cfg.seconds is not None else round(ran_s, 1)
+    return _summary(cfg, robots, relay, updating, seconds)
+
+
+def _node_argv(cfg: SitlConfig, r: SitlRobot) -> list[str]:
+    """Robot `r`'s `fieldkit node` command line (keys and state directory aside)."""
+    argv = [
+        sys.executable, "-m", "fieldkit", "node",
+        "--profile", str(r.profile.path or r.profile.name),
+        "--script", str(cfg.script),
+        *r.machine.node_args(),
+        "--radio", f"serial://{r.radio_pty.slave_path}?baud=230400&api=1&unknown=sysid",
+        "--robot-id", str(r.id),
+        "--out", str(r.out),
+        "--seed", str(cfg.seed),
+        *(a for d in cfg.include_dirs for a in ("-I", d)),
+        *cfg.extra,
+    ]  # fmt: skip
+    if cfg.seconds is not None:
+        argv += ["--seconds", str(cfg.seconds)]
+    app = r.machine.app
+    if app is not None:
+        argv += ["--config", str(_dji_config(r.out, *app))]
+    argv += ["--security", cfg.security]
+    if cfg.record is not None:
+        suffix = ".bag" if cfg.ros1 else ""
+        argv += ["--record", str(cfg.record / f"robot{r.id}{suffix}")]
+    for name, value in cfg.sets.items():
+        argv += ["--set", f"{name}={value}"]  # the node parses it back the same
+    for c in cfg.commands:
+        if c.robot == r.id:
+            # Each node gets its own robot's commands, in the one T:ROBOT:CODE form.
+            argv += ["--command", c.text()]
+    return argv
+
+
+def _dji_config(out: Path, app_id: int, app_key: str) -> Path:
+    """A node config holding only the DJI app, as a deployed M100's has it: the key in a
+    file of its own, readable by the node's user alone (never on a command line)."""
+    key = out / "dji-app-key"
+    key.unlink(missing_ok=True)
+    fd = os.open(key, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w", encoding="ascii") as f:
+        f.write(app_key + "\n")
+    config = out / "fieldkit.toml"
+    config.write_text(
+        f"# the simulated M100's test app (fieldkit.vehicle.sim.dji)\n[dji]\n"
+        f'app_id = {app_id}\napp_key_file = "{key.name}"\n',
+        encoding="utf-8",
+    )
+    return config
 
 
 class _Updating:
@@ -512,11 +658,11 @@ class _Tracker:
             return
         positions, modes = [], []
         for r in self.robots:
-            v = r.vehicle
-            lat, lon, alt = v.position
+            m = r.machine
+            lat, lon, alt = m.position
             east, north, _ = self.frame.from_gps(lat, lon)
             positions.append((east, north, alt))
-            modes.append(v.mode if v.armed else "DISARMED")
+            modes.append(m.mode)
         t = round(t, 3)  # wall time: to the millisecond is all it means
         self.tracks.add(t, positions, modes)
         sent = [r.bytes_sent for r in self.robots]
@@ -548,8 +694,23 @@ def _security(cfg: SitlConfig, nodes: Mapping[str, Mapping[str, Any]]) -> dict[s
     }
 
 
+def _ground_summary(place: LivePlace) -> dict[str, object]:
+    """What the ground station of `--ground` heard and sent."""
+    station = place.live.station
+    return {
+        "robots_heard": station.known(),
+        "commands": [c.describe() for c in station.commands],
+        "gateway": dict(place.live.gateway.counters),
+        "unsendable": place.unsendable,
+    }
+
+
 def _summary(
-    cfg: SitlConfig, robots: list[SitlRobot], relay: RadioRelay, updating: _Updating | None
+    cfg: SitlConfig,
+    robots: list[SitlRobot],
+    relay: RadioRelay,
+    updating: _Updating | None,
+    seconds: float,
 ) -> dict:
     states: dict[str, object] = {}
     errors: list[dict[str, object]] = []
@@ -574,7 +735,8 @@ def _summary(
         nodes[str(r.id)] = node
     summary = {
         "robots": cfg.robots,
-        "seconds": cfg.seconds,
+        "profiles": {str(r.id): r.profile.name for r in robots},
+        "seconds": seconds,
         "drop": cfg.drop,
         "home": list(cfg.home),
         "globals": dict(cfg.sets),
@@ -589,5 +751,7 @@ def _summary(
         "security": _security(cfg, nodes),
         "nodes": nodes,
     }
+    if relay.live is not None:
+        summary["ground"] = _ground_summary(relay.live)
     write_json(cfg.out / "summary.json", summary)
     return summary

@@ -43,6 +43,29 @@ def write_sample(path: Path, ticks: int, seed: str = "t", **kw: object) -> Sampl
 
 
 @pytest.mark.parametrize("name", STORAGES)
+def test_outbox_patches_round_trip_in_their_ticks(tmp_path: Path, name: str) -> None:
+    """/update/outbox: an originator's patches, each with its tick, read back as written and
+    by rosbags' own reader as fieldkit_msgs/msg/OutboxPatch."""
+    path = tmp_path / name
+    sample = Sample("o")
+    patches = {3: random.Random(1).randbytes(700), 7: b"FKUP" + bytes(range(256))}
+    with BagWriter(path, fsync=False) as w:
+        w.meta(sample.meta)
+        for k in range(10):
+            if k in patches:
+                w.outbox(k, patches[k], T0_NS + k)
+            sample.write_tick(w, k)
+    r = BagReader(path)
+    assert [(p.tick, p.data) for p in r.outbox()] == sorted(patches.items())
+    assert r.count(B.TOPIC_OUTBOX) == 2
+    with AnyReader([path]) as any_reader:  # the definition the bag embeds
+        conns = [c for c in any_reader.connections if c.topic == B.TOPIC_OUTBOX]
+        assert [c.msgtype for c in conns] == ["fieldkit_msgs/msg/OutboxPatch"]
+        got = [any_reader.deserialize(raw, c.msgtype) for c, _, raw in any_reader.messages(conns)]
+    assert [(m.tick, bytes(m.data)) for m in got] == sorted(patches.items())
+
+
+@pytest.mark.parametrize("name", STORAGES)
 def test_every_topic_round_trips(tmp_path: Path, name: str) -> None:
     path = tmp_path / name
     sample = write_sample(path, 30)
@@ -66,6 +89,7 @@ def test_every_topic_round_trips(tmp_path: Path, name: str) -> None:
         B.TOPIC_MAVLINK_TO: 30,
         B.TOPIC_GPS_RX: 0,  # a MAVLink flight's: declared, empty
         B.TOPIC_STREAM: 0,
+        B.TOPIC_OUTBOX: 0,  # an originator's alone
     }
     assert {t.name: t.type for t in r.topics()} == B.TOPIC_TYPES
     assert r.duration_s == pytest.approx(29 * TICK_S, abs=1e-3)
@@ -168,6 +192,7 @@ def test_the_mavros_type_is_mavros_own() -> None:
         "fieldkit_msgs/msg/SerialChunk",
         "fieldkit_msgs/msg/RadioFrame",
         "fieldkit_msgs/msg/StreamSend",
+        "fieldkit_msgs/msg/OutboxPatch",
         TICK,
     }
 
@@ -191,7 +216,7 @@ def test_ros_tools_read_our_bags_without_our_types(tmp_path: Path, name: str) ->
                 assert bytes(msg.bo) == sample.meta.bo  # type: ignore[attr-defined]
             if conn.topic == B.TOPIC_MAVLINK_FROM and seen[conn.topic] == 1:
                 assert msg.msgid == 33 and msg.sysid == 1  # type: ignore[attr-defined]
-    empty = {B.TOPIC_GPS_RX, B.TOPIC_STREAM}  # a MAVLink flight has neither
+    empty = {B.TOPIC_GPS_RX, B.TOPIC_STREAM, B.TOPIC_OUTBOX}  # none here
     assert seen[B.TOPIC_TICK] == 12 and set(seen) == set(B.TOPIC_TYPES) - empty
 
 

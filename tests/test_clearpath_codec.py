@@ -131,7 +131,7 @@ def test_parse_frame_names_the_first_bad_byte(mutate, offset: int, reason: str) 
     wire = mutate(h(WORKED["set_diff_speed_fwd_0.5"]))
     with pytest.raises(FrameError) as e:
         parse_frame(wire)
-    assert e.value.offset == offset and reason in e.value.reason
+    assert e.value.offset == offset and reason in e.value.what
 
 
 def test_payload_that_does_not_fit_its_type_is_refused() -> None:

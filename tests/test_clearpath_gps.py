@@ -6,10 +6,14 @@ The sentences are section 11's of /shared/spec/clearpath-husky.md, checked there
 
 from __future__ import annotations
 
+from collections import Counter
+
 import pytest
 import pyubx2
 
+from fieldkit.vehicle import nmea
 from fieldkit.vehicle.clearpath.gps import KNOT_MPS, GpsCore, nmea_lat, nmea_lon, sentence
+from fieldkit.vehicle.nmea import cut_sentence
 
 GGA = b"$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*47\r\n"
 RMC = b"$GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W*6A\r\n"
@@ -73,6 +77,23 @@ def test_garbage_costs_counters_and_one_event_per_streak() -> None:
     assert texts[0].startswith("gps: unreadable input (UBX length")
     assert texts[1] == "gps: fix (3D, 8 satellites)"
     assert len(texts) == 2  # the checksum failure is in the same streak as the bad frame
+
+
+def test_cut_sentence_says_wait_skip_or_line() -> None:
+    assert cut_sentence(b"$GPGGA,1", 0, 100) is None  # the line end may still come
+    assert cut_sentence(b"$" + bytes(100), 0, 100) == (1, False)  # none within reach
+    assert cut_sentence(b"xx$GPGGA,1$GPVTG\n", 2, 100) == (10, False)  # cut short
+    assert cut_sentence(b"xx" + VTG + GGA, 2, 100) == (2 + len(VTG), True)
+
+
+def test_the_gps_and_the_inspector_cut_a_stream_alike() -> None:
+    """One NMEA de-framer (cut_sentence): the same sentences found, the same refused."""
+    stream = b"zz$GPGGA,12" + GGA + b"\x00\x01$$" + VTG + b"$GPXXX,bad*00\r\n" + RMC
+    stats: Counter[str] = Counter()
+    found = list(nmea.deframe([stream[i : i + 7] for i in range(0, len(stream), 7)], stats))
+    assert found == [GGA, VTG, RMC] and stats["bad_frames"] == 1
+    g, _ = gps()
+    assert g.receive_data(stream) == 3 and g.sentences == 3 and g.bad_sentences == 1
 
 
 def test_fix_lost_by_quality_status_and_silence() -> None:

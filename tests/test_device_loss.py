@@ -446,3 +446,54 @@ def test_a_ground_robot_stops_and_gets_its_script_back_when_the_cable_returns(
         assert sim.received["SET_POSITION_TARGET_GLOBAL_INT"] >= setpoints + 9
     finally:
         cable.close()
+
+
+# ---------------------------------------------------------------- what the node reports
+
+
+def test_status_and_summary_say_how_long_the_autopilot_was_lost(tmp_path: Path) -> None:
+    """STATUS= says `autopilot link down N s` while the device is gone, and how many times
+    and how long in all once it is back; summary.json keeps the outages, the seconds down
+    and the bytes dropped."""
+    cable = LooseCable(tmp_path, "husky")
+    try:
+        cable.connect()
+        node = make_node(cable, DRIVE)
+        link = cable.link
+        cable.run_until(lambda: False, 1.0, node)
+        assert "link" not in node.status_line()
+        before = node.summary()
+        assert (before["autopilot_outages"], before["autopilot_down_s"]) == (0, 0.0)
+        assert (before["radio_outages"], before["radio_down_s"]) == (0, 0.0)
+        assert before["autopilot_bytes_dropped"] == before["radio_frames_dropped_down"] == 0
+        cable.unplug()
+        cable.run_until(lambda: False, 3.2, node)
+        lost_at = link.reopen.down_since
+        assert lost_at is not None
+        down = cable.now - lost_at
+        status = node.status_line()
+        assert f", autopilot link down {down:.1f} s, " in status, status
+        during = node.summary()
+        assert during["autopilot_outages"] == 1
+        assert during["autopilot_down_s"] == pytest.approx(down)
+        cable.plug()
+        assert cable.run_until(lambda: not link.link_down, 2.0, node)
+        total = link.reopen.down_s
+        assert total > down
+        cable.run_until(lambda: False, 1.0, node)  # up again: the total no longer grows
+        status = node.status_line()
+        assert f", autopilot link lost once, {total:.1f} s in all" in status, status
+        after = node.summary()
+        assert after["autopilot_outages"] == 1
+        assert after["autopilot_down_s"] == round(total, 3)
+        assert after["autopilot_bytes_dropped"] == link.bytes_dropped > 0
+        assert after["radio_outages"] == 0  # no radio: nothing to lose
+        # A second pull counts as a second outage, its seconds added.
+        cable.unplug()
+        cable.run_until(lambda: False, 1.5, node)
+        assert node.summary()["autopilot_outages"] == 2
+        assert node.summary()["autopilot_down_s"] == pytest.approx(
+            total + cable.now - link.reopen.down_since, abs=1e-3
+        )
+    finally:
+        cable.close()

@@ -134,7 +134,7 @@ def test_decode_names_the_first_bad_byte(mutate: object, offset: int, text: str)
     with pytest.raises(FrameError) as e:
         decode(mutate(good))  # type: ignore[operator]
     assert e.value.offset == offset
-    assert text in str(e.value) and str(e.value).startswith(f"byte {offset}: ")
+    assert text in e.value.what and str(e.value) == f"{e.value.what} at byte {offset}"
 
 
 # ---------------------------------------------------------------------------- messages

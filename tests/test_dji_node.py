@@ -9,8 +9,6 @@ deadline as a hang guard only), then stops the processes by signal.
 from __future__ import annotations
 
 import json
-import os
-import re
 import select
 import signal
 import subprocess
@@ -20,37 +18,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from rigs.flights import FLY_NORTH, NORTH, field_env
 from rigs.lines import Lines
 
 from fieldkit.vehicle.sim.dji import TEST_APP_ID, TEST_APP_KEY
 
-ROOT = Path(__file__).resolve().parents[1]
 HOME = (45.5049, -73.6133)
-
-#: Take off on RC code 22, then 10 m north, logging how far north of the climb it is.
-FLY_NORTH = """
-function init() { BVMSTATE = "TURNEDOFF" }
-function step() {
-  if (flight.rc_cmd == 22 and BVMSTATE == "TURNEDOFF") BVMSTATE = "TAKEOFF"
-  if (BVMSTATE == "TAKEOFF") {
-    uav_takeoff(TARGET_ALTITUDE)
-    if (pose.position.altitude > TARGET_ALTITUDE * 0.9) {
-      BVMSTATE = "GO"
-      LAT0 = pose.position.latitude
-      goto_abs(10.0, 0.0, 0.0, 0.0)
-    }
-  }
-  if (BVMSTATE == "GO") {
-    north = (pose.position.latitude - LAT0) * 111140.0
-    log("north ", north, " alt ", pose.position.altitude)
-  }
-}
-"""
-NORTH = re.compile(r"robot 1: north (-?[\d.]+) alt (-?[\d.]+)")
-
-
-def _env() -> dict[str, str]:
-    return dict(os.environ, PYTHONPATH=str(ROOT))
 
 
 @pytest.fixture
@@ -59,7 +32,7 @@ def m100_sim(tmp_path: Path) -> Iterator[str]:
     proc = subprocess.Popen(
         [sys.executable, "-m", "fieldkit", "vehicle-sim", "--profile", "m100",
          "--gps-delay", "0", "--home", f"{HOME[0]},{HOME[1]}"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=_env(),
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=field_env(),
     )  # fmt: skip
     try:
         assert proc.stdout is not None
@@ -80,7 +53,7 @@ def m100_sim(tmp_path: Path) -> Iterator[str]:
 
 def _config(tmp_path: Path, autopilot: str, dji: str) -> Path:
     script = tmp_path / "fly.bzz"
-    script.write_text(FLY_NORTH)
+    script.write_text(FLY_NORTH.replace("BROKEN == 1", "0 == 1"))
     config = tmp_path / "fieldkit.toml"
     config.write_text(
         f'[node]\nprofile = "m100"\nrobot_id = 1\nscript = "{script}"\n'
@@ -99,7 +72,7 @@ def test_fieldkit_node_flies_the_m100_with_the_app_from_its_config(
     config = _config(tmp_path, m100_sim, f'app_id = {TEST_APP_ID}\napp_key_file = "{key_file}"\n')
     node = subprocess.Popen(
         [sys.executable, "-m", "fieldkit", "node", "--config", str(config)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=_env(),
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=field_env(),
     )  # fmt: skip
     try:
         lines = Lines(node)
@@ -130,7 +103,7 @@ def test_an_m100_without_its_app_is_refused_before_flight(tmp_path: Path) -> Non
     config.write_text(config.read_text().replace("\n[dji]\n", ""))
     r = subprocess.run(
         [sys.executable, "-m", "fieldkit", "node", "--config", str(config)],
-        capture_output=True, text=True, cwd=tmp_path, env=_env(), timeout=120,
+        capture_output=True, text=True, cwd=tmp_path, env=field_env(), timeout=120,
     )  # fmt: skip
     assert r.returncode == 1, r.stderr
     assert "error: m100: the DJI Onboard SDK needs the developer's app id and app key" in r.stderr

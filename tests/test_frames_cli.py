@@ -1,7 +1,8 @@
 """`fieldkit frames decode`: the protocol inspector (fieldkit.frames) on every registered codec.
 
 Good frames come from the specs and docs (the docs/bundle.md worked example, the NMEA vectors
-of ../shared/spec/clearpath-husky.md §11) or from the codecs themselves; each is decoded
+of ../shared/spec/clearpath-husky.md §11, its worked MCU frames of §10, the DJI worked frames
+of ../shared/spec/dji-osdk-m100.md §13) or from the codecs themselves; each is decoded
 through the command line, changed by one byte (the error names the byte), fed as a noisy
 stream, and fuzzed: whatever the bytes, a JSON object or a FrameError inside the frame.
 """
@@ -26,7 +27,12 @@ from fieldkit.errors import FrameError
 from fieldkit.radio import xbee as X
 from fieldkit.radio import xbeemav as M
 from fieldkit.robot import bundle as B
+from fieldkit.vehicle.clearpath import frame as CP
+from fieldkit.vehicle.dji import frame as DJI
+from fieldkit.vehicle.dji.crc import crc16, crc32
+from fieldkit.vehicle.dji.crypto import FrameCipher, parse_app_key
 from fieldkit.vehicle.mavlink import new_codec
+from fieldkit.vehicle.sim.dji import TEST_APP_KEY
 
 runner = CliRunner()
 
@@ -39,6 +45,19 @@ WORKED_RF = bytes.fromhex(
 )
 WORKED_AIR = WORKED_RF[3:]
 WORKED_FRAME = X.transmit_request(WORKED_RF)
+# ../shared/spec/dji-osdk-m100.md §13.2-13.4: version query, obtain control, movement.
+DJI_VERSION = bytes.fromhex("aa 13 00 02 00 00 00 00 01 00 01 ee 00 00 00 67 1a cc 54")
+DJI_CONTROL = bytes.fromhex("aa 13 00 02 00 00 00 00 04 00 02 be 01 00 01 13 1a 9c fc")
+DJI_MOVEMENT = bytes.fromhex(
+    "aa 23 00 00 00 00 00 00 05 00 74 ef 01 03 48 00 00 80 3f 00 00 00 bf"
+    "00 00 80 3e 00 00 20 41 04 72 38 b2"
+)
+# ../shared/spec/clearpath-husky.md §10: encoder data, a drive order, its acknowledgement.
+HUSKY_ENCODERS = bytes.fromhex(
+    "AA 18 E7 00 40 E2 01 00 00 00 88 55 02 39 30 00 00 0C FE FF FF F4 01 06 FF 19 4F"
+)
+HUSKY_DRIVE = bytes.fromhex("AA 13 EC 00 00 00 00 00 00 00 02 55 32 00 32 00 F4 01 F4 01 8F 53")
+HUSKY_ACK = bytes.fromhex("AA 0D F2 00 4E E2 01 00 00 00 02 55 00 00 86 C8")
 GGA = "$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*47"
 VTG = "$GPVTG,054.7,T,034.4,M,005.5,N,010.2,K*48"
 
@@ -117,6 +136,19 @@ GOOD: dict[str, tuple[str, dict[str, Any], int, int]] = {
             "latitude": pytest.approx(48.1173), "longitude": pytest.approx(11.516667),
         },
         20, GGA.index("*"),  # a digit of the longitude: the checksum after '*' fails
+    ),
+    "dji": (
+        DJI_VERSION.hex(" "),
+        {"session": 2, "ack": 0, "seq": 1, "enc": 0, "cmd_set": 0, "cmd_id": 0, "data": "00"},
+        13, 15,  # CMD ID: the CRC32 at 19 - 4 fails
+    ),
+    "clearpath": (
+        HUSKY_ENCODERS.hex(" "),
+        {
+            "type": "0x8800", "name": "ENCODERS", "flags": 0, "timestamp": 123456,
+            "payload": {"travel": [12.345, -0.5], "speed": [0.5, -0.25]},
+        },
+        13, 25,  # a travel byte: the CRC at 27 - 2 fails
     ),
 }  # fmt: skip
 
@@ -300,6 +332,129 @@ def test_nmea_takes_text_or_hex_and_names_the_star() -> None:
     assert result.exit_code == 1 and "no checksum" in result.stderr
 
 
+def _encrypted() -> bytes:
+    """An obtain-control command encrypted with the simulator's test app key."""
+    cipher = FrameCipher.from_app_key(TEST_APP_KEY)
+    return DJI.command_frame(2, 9, 0x01, 0x00, b"\x01", cipher=cipher)
+
+
+def test_dji_worked_frames_and_an_ack() -> None:
+    ack = DJI.ack_frame(2, 4, b"\x02\x00")
+    result = _decode("dji", DJI_CONTROL.hex(), DJI_MOVEMENT.hex(":"), ack.hex())
+    assert result.exit_code == 0, result.output
+    control, movement, a = _objects(result.stdout)
+    assert (control["cmd_set"], control["cmd_id"], control["data"], control["seq"]) == (
+        1,
+        0,
+        "01",
+        4,
+    )
+    assert movement["session"] == 0 and movement["data"] == "480000803f000000bf0000803e00002041"
+    assert (a["ack"], a["cmd_set"], a["data"]) == (1, None, "0200")
+    assert "decrypted" not in control
+
+
+@pytest.mark.parametrize(
+    ("frame", "offset", "what"),
+    [
+        (DJI_VERSION[:1] + b"\x13\x04" + DJI_VERSION[3:], 2, "header version 1"),
+        (DJI_VERSION[:10] + b"\x00\x00" + DJI_VERSION[12:], 10, "CRC16 0x0000"),
+        (DJI_VERSION[:-2], 17, "truncated"),
+        (DJI_VERSION[:5], 5, "12-byte header"),
+    ],
+)
+def test_dji_layout_errors(frame: bytes, offset: int, what: str) -> None:
+    result = _decode("dji", frame.hex())
+    assert result.exit_code == 1
+    assert what in result.stderr and result.stderr.strip().endswith(f"at byte {offset}")
+
+
+def test_dji_encrypted_frames_show_ciphertext_unless_the_key_is_given(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    frame = _encrypted()
+    result = _decode("dji", frame.hex())
+    assert result.exit_code == 0, result.output
+    [d] = _objects(result.stdout)
+    assert (d["enc"], d["decrypted"], d["cmd_set"]) == (1, False, None)
+    assert d["data"] == frame[12:-4].hex()  # the ciphertext, a whole AES block
+    result = _decode("dji", "--app-key", TEST_APP_KEY, frame.hex())
+    [d] = _objects(result.stdout)
+    assert (d["decrypted"], d["cmd_set"], d["cmd_id"], d["data"]) == (True, 1, 0, "01")
+    assert TEST_APP_KEY not in result.output
+    # A stream shows the encrypted frame too, as its argument does.
+    result = _decode("dji", "--stdin", stdin=b"\x00" + frame + DJI_VERSION)
+    assert [x["enc"] for x in _objects(result.stdout)] == [1, 0]
+    monkeypatch.setenv("FIELDKIT_DJI_APP_KEY", TEST_APP_KEY.upper())
+    result = _decode("dji", frame.hex())
+    assert _objects(result.stdout)[0]["decrypted"] is True
+    assert TEST_APP_KEY.upper() not in repr(frames.Options(app_key=bytes(32)))
+    assert bytes(32).hex() not in repr(frames.Options(app_key=bytes(32)))
+
+
+def test_dji_app_key_errors_never_repeat_the_key(monkeypatch: pytest.MonkeyPatch) -> None:
+    bad = TEST_APP_KEY[:-1] + "g"
+    result = _decode("dji", "--app-key", bad, DJI_VERSION.hex())
+    assert result.exit_code == 2 and "--app-key:" in result.stderr and bad not in result.output
+    result = _decode("clearpath", "--app-key", TEST_APP_KEY, HUSKY_ACK.hex())
+    assert result.exit_code == 2 and "--app-key applies to dji" in result.stderr
+    monkeypatch.setenv("FIELDKIT_DJI_APP_KEY", "abc")
+    result = _decode("dji", DJI_VERSION.hex())
+    assert result.exit_code == 1 and "FIELDKIT_DJI_APP_KEY: " in result.stderr
+    assert _decode("clearpath", HUSKY_ACK.hex()).exit_code == 0  # not read for clearpath
+
+
+def test_clearpath_payloads_by_type_raw_hex_beside() -> None:
+    unknown = CP.Frame(0x8123, b"\x01\x02", timestamp=7).encode()
+    malformed = CP.Frame(0x8800, b"\x02\x00").encode()  # 2 encoders announced, none sent
+    result = _decode(
+        "clearpath", HUSKY_DRIVE.hex(), HUSKY_ACK.hex(), unknown.hex(), malformed.hex()
+    )
+    assert result.exit_code == 0, result.output
+    drive, ack, u, m = _objects(result.stdout)
+    assert drive["name"] == "SET_DIFF_SPEED" and drive["payload"]["left_accel"] == 5.0
+    assert ack["payload"]["accepted"] is True and ack["timestamp"] == 0x0001E24E
+    assert (u["type"], u["name"], u["payload"], u["payload_hex"]) == (
+        "0x8123",
+        "0x8123",
+        None,
+        "0102",
+    )
+    assert m["payload"] is None and "encoders" in m["error"] and m["payload_hex"] == "0200"
+
+
+@pytest.mark.parametrize(
+    ("frame", "offset", "what"),
+    [
+        (HUSKY_ACK[:2] + b"\x00" + HUSKY_ACK[3:], 2, "complement of LEN"),
+        (HUSKY_ACK[:11] + b"\x54" + HUSKY_ACK[12:], 11, "STX"),
+        (HUSKY_ACK[:-3], 13, "truncated"),
+        (HUSKY_ACK + b"\xaa", 16, "after the frame's end"),
+    ],
+)
+def test_clearpath_layout_errors(frame: bytes, offset: int, what: str) -> None:
+    result = _decode("clearpath", frame.hex())
+    assert result.exit_code == 1
+    assert what in result.stderr and result.stderr.strip().endswith(f"at byte {offset}")
+
+
+@pytest.mark.parametrize("protocol", ["dji", "clearpath"])
+def test_stdin_resyncs_inside_a_broken_frame(protocol: str) -> None:
+    """A frame cut short by the next one, and one the stream ends inside, are bad frames;
+    the frame that starts inside the broken one is found."""
+    one, two, three = STREAMS[protocol]
+    stream = one[:-3] + two + b"\xaa\xaa" + three + one[:14]
+    result = _decode(protocol, "--stdin", stdin=stream)
+    assert result.exit_code == 0, result.output
+    assert _objects(result.stdout) == [
+        _objects(_decode(protocol, f.hex()).stdout)[0] for f in (two, three)
+    ]
+    garbage = len(stream) - len(two) - len(three)
+    assert result.stderr.strip().endswith(f" bad, {garbage} garbage bytes")
+    bad = int(result.stderr.split(" frames, ")[1].split(" bad")[0])
+    assert bad >= 2, result.stderr  # the cut frame and the unfinished one at least
+
+
 # ------------------------------------------------------------------ the command line
 
 
@@ -339,6 +494,8 @@ STREAMS: dict[str, list[bytes]] = {
     "xbeemav": [X.receive_packet(7, WORKED_RF), X.receive_packet(8, b"A\x01\x08")],
     "bundle": [X.receive_packet(7, WORKED_RF), WORKED_FRAME],
     "nmea": [f"{GGA}\r\n".encode(), f"{VTG}\r\n".encode(), f"{GGA}\r\n".encode()],
+    "dji": [DJI_VERSION, DJI_CONTROL, DJI_MOVEMENT],
+    "clearpath": [HUSKY_ENCODERS, HUSKY_DRIVE, HUSKY_ACK],
 }
 
 
@@ -457,6 +614,27 @@ def test_fuzz_streams_never_raise(protocol: str, noise: list[bytes]) -> None:
     counts = frames.StreamCounts()
     found = list(frames.decode_stream(frames.PROTOCOLS[protocol], chunks, frames.Options(), counts))
     assert counts.frames == len(found) and 0 <= counts.garbage_bytes <= counts.bytes_in
+
+
+@settings(max_examples=300, deadline=None)
+@given(data=st.data())
+def test_fuzz_encrypted_dji_frames_with_and_without_the_key(data: st.DataObject) -> None:
+    """The decrypting path too: mutated encrypted frames, with the key and without."""
+    frame = bytearray(_encrypted())
+    for _ in range(data.draw(st.integers(1, 3))):
+        at = data.draw(st.integers(0, len(frame) - 1))
+        frame[at] = data.draw(st.integers(0, 255))
+    if data.draw(st.booleans()):  # good CRCs: the checks behind them (ENC, padding) run
+        frame[10:12] = crc16(bytes(frame[:10])).to_bytes(2, "little")
+        frame[-4:] = crc32(bytes(frame[:-4])).to_bytes(4, "little")
+    key = parse_app_key(TEST_APP_KEY)
+    for options in (frames.Options(), frames.Options(app_key=key)):
+        try:
+            described = frames.PROTOCOLS["dji"].describe(bytes(frame), options)
+        except FrameError as e:
+            assert 0 <= e.offset <= len(frame)
+        else:
+            json.dumps(described, allow_nan=False)
 
 
 @settings(max_examples=300, deadline=None)

@@ -179,6 +179,25 @@ def test_mcu_silent_is_a_lost_heartbeat_and_back() -> None:
     assert texts[0].startswith("MCU silent: no answer for 3.") and texts[1] == "MCU answering again"
 
 
+def test_a_host_held_up_is_not_a_silent_mcu() -> None:
+    # The node's loop held up for 5 s (a slow start-up on a loaded computer): the MCU, which
+    # answers only when asked, was asked nothing; its silence is not a lost heartbeat.
+    r = rig()
+    r.core.drain_events()
+    for _ in range(50):  # 5 s of the machine while the host neither reads nor asks
+        r.sim.step(0.1)
+        r.now += 0.1
+    r.core.receive_gps(r.sim.gps.data_to_send())  # what the GPS port queued meanwhile
+    r.core.tick()
+    assert not r.core.heartbeat_lost and r.core.heartbeat_age() == 0.0
+    r.deliver()
+    r.run_for(2.0)
+    assert not r.core.heartbeat_lost
+    assert not [e for e in r.core.drain_events() if e.kind == "heartbeat"]
+    r.sim.faults.mcu_silent = True  # a silent MCU is still found, from the host's asking on
+    assert r.run_until(lambda: r.core.heartbeat_lost, HUSKY.autopilot.heartbeat_timeout_s + 0.5)
+
+
 def test_the_mcu_watchdog_stops_the_base_when_commands_stop() -> None:
     r = rig()
     to = target(30.0, 0.0)

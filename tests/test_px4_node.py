@@ -10,8 +10,6 @@ a hang guard only), then stops the processes by signal.
 from __future__ import annotations
 
 import json
-import os
-import re
 import select
 import signal
 import subprocess
@@ -22,6 +20,7 @@ from pathlib import Path
 
 import pytest
 from rigs import SimRig
+from rigs.flights import FLY_NORTH, NORTH, field_env
 from rigs.lines import Lines
 from typer.testing import CliRunner
 
@@ -34,34 +33,6 @@ from fieldkit.robot.rc import RcCommand
 ROOT = Path(__file__).resolve().parents[1]
 HOME = (45.5049, -73.6133)
 
-#: Take off on RC code 22, then 10 m north; log how far north of the climb it is, and how high
-#: (metres per degree of latitude at 45.5 degrees: 111,140; Buzz's float32 latitude is good to
-#: 0.4 m there). `BROKEN == 1`: fail on the way.
-FLY_NORTH = """
-function init() { BVMSTATE = "TURNEDOFF" }
-function step() {
-  if (flight.rc_cmd == 22 and BVMSTATE == "TURNEDOFF") BVMSTATE = "TAKEOFF"
-  if (BVMSTATE == "TAKEOFF") {
-    uav_takeoff(TARGET_ALTITUDE)
-    if (pose.position.altitude > TARGET_ALTITUDE * 0.9) {
-      BVMSTATE = "GO"
-      LAT0 = pose.position.latitude
-      goto_abs(10.0, 0.0, 0.0, 0.0)
-    }
-  }
-  if (BVMSTATE == "GO") {
-    north = (pose.position.latitude - LAT0) * 111140.0
-    log("north ", north, " alt ", pose.position.altitude)
-    if (BROKEN == 1 and north > 9.0) { var crash = 1 / 0 }
-  }
-}
-"""
-NORTH = re.compile(r"robot 1: north (-?[\d.]+) alt (-?[\d.]+)")
-
-
-def _env() -> dict[str, str]:
-    return dict(os.environ, PYTHONPATH=str(ROOT))
-
 
 @pytest.fixture
 def px4_sim(tmp_path: Path) -> Iterator[tuple[str, subprocess.Popen[str]]]:
@@ -69,7 +40,7 @@ def px4_sim(tmp_path: Path) -> Iterator[tuple[str, subprocess.Popen[str]]]:
     proc = subprocess.Popen(
         [sys.executable, "-m", "fieldkit", "vehicle-sim", "--profile", "spiri",
          "--gps-delay", "0", "--home", f"{HOME[0]},{HOME[1]}"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=_env(),
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=field_env(),
     )  # fmt: skip
     try:
         assert proc.stdout is not None
@@ -99,7 +70,7 @@ def test_fieldkit_node_flies_the_spiri_on_the_simulated_px4_and_the_flight_repla
         [sys.executable, "-m", "fieldkit", "node", "--robot-id", "1", "--profile", "spiri",
          "--script", str(script), "--autopilot", path, "--radio", "none",
          "--command", "0:1:22", "--out", str(tmp_path / "o"), "--record", str(bag)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=_env(),
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=field_env(),
     )  # fmt: skip
     try:
         lines = Lines(node)

@@ -31,6 +31,7 @@ from fuzz.bundle_fuzz import EXAMPLE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from fieldkit.node.health import radio_health
 from fieldkit.radio import RadioLink, XBeeRadio, from_profile, open_radio
 from fieldkit.radio import xbee as X
 from fieldkit.radio import xbeemav as M
@@ -641,6 +642,13 @@ def test_a_module_unplugged_and_back_is_reopened_through_its_symlink(
         assert r2.down and r2.fileno() is None
         assert r2.stats["frames_dropped_down"] >= 45  # paced out of the queue, then dropped
         assert r2.stats["reopen_failures"] == 4  # once a second, not once a poll
+        # What the node's STATUS= and summary.json say of it (fieldkit/node/health.py).
+        lost_at = clock.now - r2.down_for()
+        health = radio_health(r2)
+        assert health.down_for_s == pytest.approx(clock.now - lost_at) and health.outages == 1
+        assert health.down_s == health.down_for_s
+        assert health.dropped == r2.stats["frames_dropped_down"]
+        assert health.status("radio") == f"radio link down {health.down_for_s:.1f} s"
         lines = [(r.levelname, r.getMessage()) for r in caplog.records]
         assert len(lines) == 1 and lines[0][0] == "WARNING"
         assert re.fullmatch(rf"radio: {re.escape(path)} lost \(read failed: .+\); reopening",
@@ -658,6 +666,10 @@ def test_a_module_unplugged_and_back_is_reopened_through_its_symlink(
             r2.poll()
             clock.now += 0.1
         assert not r2.down and r2.stats["reopens"] == 1
+        back = radio_health(r2)
+        assert back.down_for_s is None and back.outages == 1 and r2.down_for() == 0.0
+        assert back.down_s == pytest.approx(clock.now - 0.1 - lost_at)  # reopened a poll ago
+        assert back.status("radio") == f"radio link lost once, {back.down_s:.1f} s in all"
         new.serve(r2)
         assert len(caplog.records) == 2
         assert re.fullmatch(rf"radio: {re.escape(path)} back after [\d.]+ s \(\d+ frames dropped "

@@ -6,7 +6,7 @@ import json
 import os
 import re
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Annotated, Any
 
 import typer
@@ -22,6 +22,8 @@ app = typer.Typer(
 
 #: What may separate hex digits inside one frame argument.
 _SEPARATORS = re.compile(r"[\s:]+")
+#: Where --app-key may come from instead, so that a real key stays off the command line.
+APP_KEY_ENV = "FIELDKIT_DJI_APP_KEY"
 #: How much of stdin one read takes at most (a read returns what a pipe has so far).
 _READ_SIZE = 1 << 16
 
@@ -41,6 +43,25 @@ def _frame_bytes(index: int, text: str, protocol: registry.Protocol) -> bytes:
     if not data:
         raise usage_error(f"frame {index} is empty")
     return data
+
+
+def _app_key(text: str | None, found: registry.Protocol) -> bytes | None:
+    """The key bytes of --app-key, else of $FIELDKIT_DJI_APP_KEY for a protocol that takes
+    one; an error that never repeats the key (exit 2 for the option, 1 for the variable)."""
+    if text is None and found.app_key:
+        env = os.environ.get(APP_KEY_ENV)
+        if env:
+            return _parse_key(env, APP_KEY_ENV, fail)
+    return None if text is None else _parse_key(text, "--app-key", usage_error)
+
+
+def _parse_key(text: str, given: str, error: Callable[[str], Exception]) -> bytes:
+    from fieldkit.vehicle.dji.crypto import AppKeyError, parse_app_key
+
+    try:
+        return parse_app_key(text)
+    except AppKeyError as e:
+        raise error(f"{given}: {e}") from None
 
 
 def _stdin_chunks() -> Iterator[bytes]:
@@ -95,6 +116,17 @@ def decode_cmd(
             show_default=False,
         ),
     ] = None,
+    app_key: Annotated[
+        str | None,
+        typer.Option(
+            "--app-key",
+            metavar="HEX",
+            help="dji: the developer's app key (64 hex digits) that decrypts encrypted "
+            f"frames; ${APP_KEY_ENV} keeps it out of shell history. Without it an encrypted "
+            "frame shows its ciphertext.",
+            show_default=False,
+        ),
+    ] = None,
 ) -> None:
     """Decode frames of PROTOCOL: one JSON object per frame on stdout, its fields named as in
     the protocol's spec. A frame that fails its checksum or layout stops the command with
@@ -104,9 +136,11 @@ def decode_cmd(
         raise usage_error(f"unknown protocol {protocol!r}: one of {', '.join(registry.names())}")
     if api_mode is not None and not found.api_mode:
         raise usage_error(f"--api-mode applies to XBee-framed protocols, not {protocol}")
+    if app_key is not None and not found.app_key:
+        raise usage_error(f"--app-key applies to dji frames, not {protocol}")
     if stdin == bool(frames):
         raise usage_error("give the frames as arguments, or --stdin for a byte stream (not both)")
-    options = registry.Options(api_mode=api_mode or 1)
+    options = registry.Options(api_mode=api_mode or 1, app_key=_app_key(app_key, found))
     if stdin:
         _decode_stream(found, options)
         return

@@ -1,5 +1,6 @@
-"""`fieldkit sim run ... --ground`: the simulation in real time with a ground station, its
-page and a UDP gateway (fieldkit/ground/live.py); the command-line side."""
+"""`fieldkit sim run ... --ground` (the simulation in real time with a ground station, its
+page and a UDP gateway, fieldkit/ground/live.py) and `fieldkit sitl ... --ground` (the same
+beside a SITL swarm): the command-line side both share."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import signal
 import threading
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -15,6 +16,7 @@ from fieldkit.cli.errors import fail
 from fieldkit.cli.output import out_dir
 
 if TYPE_CHECKING:
+    from fieldkit.ground.live import LiveGround
     from fieldkit.sim.simulator import Simulation
 
 
@@ -41,6 +43,35 @@ def ground_keys(out: Path, keys: Path | None) -> Path:
     return made
 
 
+def drawing(globals_: Mapping[str, object], script_name: str) -> dict[str, Any]:
+    """What the page draws for this run (`make_station`'s shape, root_id, margin): the task
+    graph of `--set SHAPE` (task allocation's "P" by default) at ROOT_ID, coverage's MARGIN."""
+    shape = globals_.get("SHAPE")
+    if shape is None and "task_allocation" in script_name:
+        shape = "P"
+    root = globals_.get("ROOT_ID", 1)
+    margin = globals_.get("MARGIN", 20.0)
+    return {
+        "shape": None if shape is None else str(shape),
+        "root_id": root if isinstance(root, int) else 1,
+        "margin": float(margin) if isinstance(margin, int | float) else 20.0,
+    }
+
+
+def port_taken(http_port: int, e: OSError) -> typer.Exit:
+    """The `error:` of a page (or gateway) that cannot be served."""
+    return fail(
+        f"--ground-port {http_port}: cannot serve the page: {e.strerror or e}\n"
+        "  hint: another program uses the port: give --ground-port with another one"
+    )
+
+
+def announce(live: LiveGround, keys: Path | None) -> None:
+    """Tell the operator where the page and the radio gateway are (stderr)."""
+    for line in live.banner(keys):
+        typer.echo(line, err=True)
+
+
 def run_with_ground(
     sim: Simulation,
     keys: Path | None,
@@ -54,33 +85,12 @@ def run_with_ground(
     from fieldkit.ground.live import attach, run_live
     from fieldkit.sim.simulator import tuned_collector
 
-    script = sim.config.script.name
-    shape = globals_.get("SHAPE")
-    if shape is None and "task_allocation" in script:
-        shape = "P"
-    root = globals_.get("ROOT_ID", 1)
-    margin = globals_.get("MARGIN", 20.0)
     try:
-        live = attach(
-            sim,
-            keys,
-            http_port=http_port,
-            shape=None if shape is None else str(shape),
-            root_id=root if isinstance(root, int) else 1,
-            margin=float(margin) if isinstance(margin, int | float) else 20.0,
-        )
+        live = attach(sim, keys, http_port=http_port, **drawing(globals_, sim.config.script.name))
     except OSError as e:
-        raise fail(
-            f"--ground-port {http_port}: cannot serve the page: {e.strerror or e}\n"
-            "  hint: another program uses the port: give --ground-port with another one"
-        ) from None
+        raise port_taken(http_port, e) from None
     until = "until Ctrl-C" if seconds is None else f"for {seconds:g} s"
-    typer.echo(f"ground: page at {live.server.url}", err=True)
-    typer.echo(
-        f"ground: radio gateway {live.gateway.url} (fieldkit cmd takeoff --radio "
-        f"{live.gateway.url} --keys {keys})",
-        err=True,
-    )
+    announce(live, keys)
     typer.echo(f"ground: simulating {sim.config.robots} robots in real time {until}", err=True)
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())

@@ -210,6 +210,16 @@ def node_cmd(
     ] = None,
     keys: KeysOption = None,
     security: SecurityOption = None,
+    update_outbox: Annotated[
+        Path | None,
+        typer.Option(
+            "--update-outbox",
+            metavar="FILE",
+            help="Originate updates: a new or changed patch in FILE (`fieldkit update "
+            "--patch-out FILE --watch`) is verified and sent to the swarm (needs --state-dir "
+            "and --keys).",
+        ),
+    ] = None,
     config: ConfigOption = None,
 ) -> None:
     """Run SCRIPT on this robot: the VM against the autopilot (MAVLink) and the radio."""
@@ -225,6 +235,7 @@ def node_cmd(
             "record_max_mb": record_max_mb, "include": include, "command": command,
             "set": sets, "connect_timeout": connect_timeout, "seed": seed,
             "state_dir": state_dir, "keys": keys, "security": security,
+            "update_outbox": update_outbox,
         }  # fmt: skip
         options = node_options(given, config)
         _node(options, signals)
@@ -256,6 +267,8 @@ class NodeOptions:
     keys: Path | None
     security: str | None
     config: Path | None
+    #: The originator's patch file (`--update-outbox`), None for a robot that only receives.
+    update_outbox: Path | None = None
     #: What a new flight's bag is pruned against (the config's [record] keep_mb), and where.
     record_keep: tuple[Path, float] | None = None
     #: A Clearpath base's GPS port (--gps): None for the profile's.
@@ -333,6 +346,7 @@ def node_options(
         keys=path("keys"),
         security=pick("security"),
         config=config,
+        update_outbox=path("update_outbox"),
         record_keep=keep,
         gps=pick("gps"),
         dji=dji,
@@ -365,6 +379,12 @@ def _node(o: NodeOptions, signals: ServiceSignals) -> None:
     for text, c in zip(o.command, commands, strict=True):
         if c.robot != rid:
             raise fail(f"--command {text!r} is for robot {c.robot}, this node is robot {rid}")
+    if o.update_outbox is not None and (o.state_dir is None or o.keys is None):
+        raise fail(
+            f"--update-outbox {o.update_outbox}: originating updates needs the update agent\n"
+            "hint: give --state-dir DIR and --keys DIR too (the robot's versions, and the "
+            "keys its patches are verified with)"
+        )
     script = resources.find_script(o.script) if o.script is not None else None
     say = NodeLog(rid, journal=_journal())
     robot_keys = load_keys(o.keys) if o.keys is not None else None
@@ -423,6 +443,7 @@ def _node(o: NodeOptions, signals: ServiceSignals) -> None:
             script_name=label,
             signals=signals,
             reload_check=None if o.config is None else lambda: check_reload(o),
+            update_outbox=o.update_outbox,
         )
     finally:
         if link_radio is not None:
@@ -563,6 +584,7 @@ def _run(
     reload_check: ReloadCheck | None = None,
     gps: str | None = None,
     dji: DjiApp | None = None,
+    update_outbox: Path | None = None,
 ) -> None:
     """Connect to the autopilot, run the loop, stop safely; exit 1 if the script is failed.
 
@@ -572,6 +594,7 @@ def _run(
     from fieldkit.node.clock import TickClock
     from fieldkit.node.daemon import Notifier
     from fieldkit.node.node import Node
+    from fieldkit.node.outbox import Outbox
     from fieldkit.node.recording import NodeRecording
     from fieldkit.node.service import NodeService, ServiceSignals
     from fieldkit.node.startup import start_vehicle
@@ -630,7 +653,10 @@ def _run(
                 security=security,
                 command_gate=command_gate,
                 recorder=None if recording is None else recording.recorder,
+                outbox=None if update_outbox is None else Outbox(update_outbox, say),
             )
+            if update_outbox is not None:
+                say(f"update outbox: {update_outbox} (a new patch there goes to the swarm)")
             if recording is not None:
                 try:
                     recording.begin(node, link, script_name=script_name, seed=seed,

@@ -287,6 +287,7 @@ def _plan(
     seconds: float | None,
     script: Path | None,
     swarm_key: bytes | None = None,
+    burst: float | None = None,
 ) -> Plan:
     """Validate one experiment's parameters into a Plan; errors exit 1 with `error: ...`."""
     from fieldkit.sim.experiments import ExperimentError, check_script, make_plan
@@ -301,6 +302,7 @@ def _plan(
             seconds=seconds,
             script=script,
             swarm_key=swarm_key,
+            burst=burst,
         )
         check_script(plan)
     except ExperimentError as e:
@@ -318,6 +320,13 @@ def _report(name: str, summary: dict[str, object], out: Path) -> None:
     if "joined_fraction" in summary:
         fractions = cast(list[float], summary["joined_fraction"])
         figures.insert(0, f"JOINED at the end: min {min(fractions):.2f}")
+    if "tasks_held_fraction" in summary:
+        held = cast(list[float], summary["tasks_held_fraction"])
+        recovered = cast(list[float | None], summary["recovered_s"])
+        times = [t for t in recovered if t is not None]
+        slowest = f", the slowest in {max(times):g} s" if times else ""
+        figures.insert(0, f"tasks held at the end: min {min(held):.2f}")
+        figures.insert(1, f"recovered in {len(times)} of {len(recovered)} runs{slowest}")
     if "final_centroid_distance_m" in summary:
         distances = cast(list[float], summary["final_centroid_distance_m"])
         figures.insert(0, f"final centroid distance: max {max(distances):.2f} m")
@@ -360,7 +369,8 @@ def experiment_cmd(
         str,
         typer.Argument(
             metavar="NAME",
-            help="task-allocation, task-allocation-scale, coverage or coverage-scale.",
+            help="task-allocation, task-allocation-scale, coverage, coverage-scale or"
+            " task-allocation-loss.",
             show_default=False,
         ),
     ],
@@ -370,6 +380,14 @@ def experiment_cmd(
     ] = None,
     drop: Annotated[
         float | None, typer.Option("--drop", metavar="P", help="Only this drop rate, 0..1.")
+    ] = None,
+    burst: Annotated[
+        float | None,
+        typer.Option(
+            "--burst",
+            metavar="L",
+            help="Losses in bursts of L ticks on average (Gilbert-Elliott) at each drop rate.",
+        ),
     ] = None,
     runs: _RunsOption = None,
     seed: _SeedOption = None,
@@ -387,6 +405,7 @@ def experiment_cmd(
         seed,
         seconds,
         script,
+        burst=burst,
     )
     plan = dataclasses.replace(plan, swarm_key=_swarm_key(security, keys))
     out_dir(out)
@@ -433,13 +452,14 @@ def sweep_cmd(
     ] = False,
 ) -> None:
     """Run a grid of experiments in parallel on Dask; OUT/NAME/ as `experiment` writes it."""
-    from fieldkit.sim.experiments import EXPERIMENTS, write_outputs
+    from fieldkit.sim.experiments import write_outputs
+    from fieldkit.sim.experiments.catalogue import PAPER_EXPERIMENTS
     from fieldkit.sim.sweep import DEFAULT_WORKERS, SweepError, cluster_client, sweep
 
     n_workers = DEFAULT_WORKERS if workers is None else workers
     if not 1 <= n_workers <= 1024:
         raise fail(f"--workers must be between 1 and 1024, got {n_workers}")
-    chosen = names or list(EXPERIMENTS)
+    chosen = names or list(PAPER_EXPERIMENTS)
     plans = [
         _plan(name, robots or None, drop or None, runs, seed, seconds, script)
         for name in dict.fromkeys(chosen)

@@ -16,16 +16,18 @@ if TYPE_CHECKING:
     from fieldkit.update.release import Release
 
 
-def release_for(u: UpdateAt, include_dirs: Sequence[str], profile: str) -> Release:
+def release_for(u: UpdateAt, include_dirs: Sequence[str], profile: str | Sequence[str]) -> Release:
     """An `--update`'s new version, compiled and passed through its trial as `fieldkit
-    update` does (a version that fails either is never sent: exit 1, saying why)."""
+    update` does (a version that fails either is never sent: exit 1, saying why), on
+    `profile` (a name, or a team's profiles, each tried)."""
     from fieldkit.errors import FieldkitError
     from fieldkit.sim.trial import trial
     from fieldkit.update.pipeline import build
 
     try:
         script = resources.find_script(u.script)
-        release = build(script, include_dirs, test=lambda p: trial(p, [profile]))
+        profiles = [profile] if isinstance(profile, str) else list(profile)
+        release = build(script, include_dirs, test=lambda p: trial(p, profiles))
     except FieldkitError as e:
         raise fail(f"--update {u.t:g}:{u.script}: {e}") from None
     typer.echo(

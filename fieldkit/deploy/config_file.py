@@ -96,6 +96,7 @@ class NodeConfig:
     script: str | None = None  # the installed script (seeds an empty state directory)
     keys: bool = False  # the robot's keys are installed: signed bundles
     include: bool = False  # the script has includes
+    originator: bool = False  # the update monitor writes patches into the outbox
 
 
 def node_config(config: NodeConfig) -> str:
@@ -115,6 +116,8 @@ def node_config(config: NodeConfig) -> str:
         node.append(Key("security", "signed"))
     if config.include:
         node.append(Key("include", [str(layout.INCLUDE_DIR)]))
+    if config.originator:
+        node.append(Key("update_outbox", str(layout.OUTBOX_PATCH), "fieldkit-update's patches"))
     record = [
         Key("dir", str(layout.LOG_DIR)),
         Key("max_mb", RECORD_MAX_MB, "one recording's cap"),

@@ -125,6 +125,8 @@ def make_plan(options: Options, machine: Machine) -> Plan:
             "signing key otherwise"
         )
     keys = _robot_keys(options.keys, warnings) if options.keys is not None else []
+    if options.originator:
+        keys = _originator_keys(keys, operator_keys, options)
 
     network = autopilot.network or radio.network
     devices = tuple(dict.fromkeys(d for d in (autopilot.device, radio.device) if d))
@@ -151,6 +153,7 @@ def make_plan(options: Options, machine: Machine) -> Plan:
         script=str(script.target) if script is not None else None,
         keys=bool(keys),
         include=script is not None and script.has_includes,
+        originator=options.originator,
     )
     rules = [link.usb for link in links if link.usb is not None]
 
@@ -378,6 +381,25 @@ def _operator_keys(directory: Path) -> list[tuple[str, bytes]]:
     load_signing_key(directory)
     load_robot_keys(directory)
     return [(name, _read_key(directory / name)) for name in (OPERATOR_KEY, OPERATOR_PUB, SWARM_KEY)]
+
+
+def _originator_keys(
+    keys: list[tuple[str, bytes]], operator_keys: list[tuple[str, bytes]], options: Options
+) -> list[tuple[str, bytes]]:
+    """The node's keys on an originator: it verifies the patches its monitor signs, so it
+    needs them even without --keys (then taken from --operator-keys, the signing key left
+    out); --keys of another swarm or operator would refuse every one of them."""
+    public = [(name, data) for name, data in operator_keys if name != OPERATOR_KEY]
+    if not keys:
+        return public
+    if dict(keys) != dict(public):
+        raise DeployError(
+            f"--keys {options.keys} and --operator-keys {options.operator_keys} hold different "
+            f"{OPERATOR_PUB} or {SWARM_KEY}: the node would refuse every patch its update "
+            "monitor signs\nhint: give the keys of one swarm, or leave --keys out (the "
+            "originator then takes them from --operator-keys)"
+        )
+    return keys
 
 
 def _read_key(path: Path) -> bytes:

@@ -11,6 +11,7 @@ A deployed robot's service runs `fieldkit node --config /etc/fieldkit/fieldkit.t
     keys = "/etc/fieldkit/keys"
     security = "signed"
     set = ["SHAPE=Y"]
+    update_outbox = "/var/lib/fieldkit/outbox/update.patch"   # an originator's
 
     [record]                     # a new bag per run, under one folder with a total cap
     dir = "/var/log/fieldkit"
@@ -132,10 +133,11 @@ NODE_KEYS: dict[str, Check] = {
     "state_dir": _string,
     "keys": _string,
     "security": _one_of("signed", "none"),
+    "update_outbox": _string,
 }
 """The `[node]` keys: `fieldkit node`'s options, named with underscores, and their checks."""
 
-PATH_KEYS = frozenset({"script", "out", "record", "state_dir", "keys", "include"})
+PATH_KEYS = frozenset({"script", "out", "record", "state_dir", "keys", "include", "update_outbox"})
 """Keys whose values are paths: resolved against the config file's folder."""
 
 RECORD_KEYS: dict[str, Check] = {"dir": _string, "max_mb": _positive, "keep_mb": _positive}

@@ -3,6 +3,7 @@
 The tick itself is the robot's (`fieldkit.robot.RobotRuntime`, the same in the simulator);
 the node feeds it, in this order:
 
+    outbox      an originator's new patch file (`--update-outbox`) -> the update agent
     radio in    bundles heard since the last tick -> the runtime
     sensors     the vehicle's telemetry -> `Sensors`, plus any remote-control code now due
     step, radio out, actuators: the runtime's tick -> one bundle to the radio, at most one
@@ -29,6 +30,7 @@ from typing import TYPE_CHECKING, Protocol
 import bvm
 from bvm.digest import state_digest
 from fieldkit.node.clock import TickClock
+from fieldkit.node.health import LinkHealth, ReportsLinkHealth, radio_health
 from fieldkit.node.log import NodeLog
 from fieldkit.radio.base import RadioLink
 from fieldkit.robot import geo
@@ -41,6 +43,7 @@ from fieldkit.robot.runtime import RobotRuntime, ScriptStatus, TickRecord
 from fieldkit.robot.vehicle import VehiclePort, sensors_from
 
 if TYPE_CHECKING:
+    from fieldkit.node.outbox import PatchSource
     from fieldkit.update.host import RobotUpdater
     from fieldkit.update.keys import RobotKeys
     from fieldkit.update.store import VersionStore
@@ -58,6 +61,9 @@ class FlightRecorder(Protocol):
 
     def radio_out(self, data: bytes) -> None:
         """A frame the node sent this tick."""
+
+    def outbox_in(self, data: bytes) -> None:
+        """A patch the node read from its outbox this tick (an input, like a radio frame)."""
 
     def end_tick(self, record: TickRecord, digest: bytes, log: list[str]) -> None:
         """The tick ran: what it saw and did, its script-state digest, its script lines."""
@@ -89,6 +95,7 @@ class Node:
         security: LinkSecurity | None = None,
         command_gate: CommandGate | None = None,
         recorder: FlightRecorder | None = None,
+        outbox: PatchSource | None = None,
     ) -> None:
         """`commands` are this robot's remote-control codes (times from start); `out` takes
         each line the node logs, unstamped (default: a `NodeLog` on stdout); `seed` seeds
@@ -97,7 +104,8 @@ class Node:
         store `program` came from, `keys` the `--keys` (both None without the options);
         `security` seals and checks the bundles (`node_security`; None: plain bytes);
         `command_gate` checks the operator's signed commands (`node_commands`); `recorder`
-        keeps every tick's inputs and outputs (`--record`)."""
+        keeps every tick's inputs and outputs (`--record`); `outbox` gives the patches made
+        on this robot (`--update-outbox`; it needs `store` and `keys`)."""
         self.profile = profile
         #: What the update agent works with: the robot's versions and its keys.
         self.store = store
@@ -145,6 +153,9 @@ class Node:
 
             self.updater = node_updater(self.runtime, store, keys, self.out, seed=seed)
             self._room_for_updates(radio)
+        if outbox is not None and self.updater is None:
+            raise ValueError("an update outbox needs the update agent: a store and keys")
+        self.outbox = outbox
 
     def _room_for_updates(self, radio: RadioLink | None) -> None:
         """Let an XBee carry a tick's update frame next to its bundle.
@@ -193,6 +204,13 @@ class Node:
             self.out.tick = runtime.ticks  # the journal's TICK field
         if recorder is not None:
             recorder.begin_tick(runtime.ticks, now, unix_ns)
+        # 0. the outbox: a patch made on this robot, verified and spread as if received
+        if self.outbox is not None and updater is not None:
+            patch = self.outbox.poll(runtime.ticks)
+            if patch is not None:
+                if recorder is not None:
+                    recorder.outbox_in(patch)
+                self._originate(patch, updater, self.outbox.name)
         # 1. radio in: update frames to the update agent, bundles to the runtime
         if self.radio is not None:
             for sender, data in self.radio.poll():
@@ -223,6 +241,23 @@ class Node:
         if recorder is not None and self._record is not None:
             recorder.end_tick(self._record, state_digest(runtime.vm), self._tick_log)
             self._tick_log = []
+
+    def _originate(self, patch: bytes, updater: RobotUpdater, name: str) -> None:
+        """Hand a patch from the outbox to the update agent; its verdict is logged once."""
+        from fieldkit.update.agent import digest_of
+
+        held = updater.agent.transfers.get(digest_of(patch))
+        if held is not None and held.complete:
+            # Made here before (a restart), pulled from a neighbour, or kept by the store:
+            # verifying it again would only refuse it as not above the version it made.
+            self.out(f"outbox {name}: version {held.version}'s patch, which this robot "
+                     "already holds: nothing new")  # fmt: skip
+            return
+        self.out(f"outbox {name}: a new patch ({len(patch)} bytes): verifying it")
+        try:
+            updater.inject(patch)
+        except Exception as e:  # noqa: BLE001  # a file on disk must never stop the robot
+            self.out(f"outbox {name}: patch not handled: {type(e).__name__}: {e}")
 
     def _send(self, data: bytes) -> None:
         assert self.radio is not None
@@ -302,17 +337,34 @@ class Node:
         failsafe = runtime.supervisor.failsafe
         radio = self.radio.stats if self.radio is not None else Counter()
         frames_in = radio.get("frames_in", 0) + radio.get("datagrams_in", 0)
+        losses = [
+            h.status(name)
+            for name, h in (("autopilot", self.autopilot_health()), ("radio", self.radio_health()))
+        ]
         return (
             f"tick {runtime.ticks}, state {state}, {heard} neighbours, "
             f"autopilot heartbeat {t.heartbeat_age_s:.1f} s ago, radio {frames_in} frames in"
+            + "".join(f", {loss}" for loss in losses if loss is not None)
             + (f", failsafe {failsafe}" if failsafe else "")
             + (f", {self.late_ticks} late ticks" if self.late_ticks else "")
         )
+
+    def autopilot_health(self) -> LinkHealth:
+        """The autopilot device's losses (none for a vehicle that cannot lose one)."""
+        vehicle = self.vehicle
+        if isinstance(vehicle, ReportsLinkHealth):
+            return vehicle.link_health(self.clock())
+        return LinkHealth()
+
+    def radio_health(self) -> LinkHealth:
+        """The radio device's losses (an XBee's; none for a UDP radio or no radio)."""
+        return radio_health(self.radio)
 
     def summary(self) -> dict[str, object]:
         """What `--out DIR` writes to summary.json."""
         messages, bad = self.vehicle.counters()
         radio = self.radio.stats if self.radio is not None else Counter()
+        autopilot, radio_loss = self.autopilot_health(), self.radio_health()
         runtime = self.runtime
         return {
             "robot_id": self.robot_id,
@@ -324,6 +376,13 @@ class Node:
             "radio_frames_in": radio.get("frames_in", 0) + radio.get("datagrams_in", 0),
             "radio_frames_out": radio.get("frames_out", 0) + radio.get("datagrams_out", 0),
             "radio_bad_frames": radio.get("bad_frames", 0) + radio.get("bad_datagrams", 0),
+            # Device loss (a loose cable): outages, seconds down in all, what was dropped.
+            "autopilot_outages": autopilot.outages,
+            "autopilot_down_s": round(autopilot.down_s, 3),
+            "autopilot_bytes_dropped": autopilot.dropped,
+            "radio_outages": radio_loss.outages,
+            "radio_down_s": round(radio_loss.down_s, 3),
+            "radio_frames_dropped_down": radio_loss.dropped,
             "bundle_errors": runtime.counters["bundle_errors"],
             "decode_errors": runtime.vm.counters["decode_errors"],
             "errors": [runtime.error] if runtime.error is not None else [],

@@ -36,6 +36,7 @@ import bvm
 from fieldkit.node.autopilot_port import vehicle_port
 from fieldkit.node.clock import TickClock
 from fieldkit.node.node import Node
+from fieldkit.node.outbox import RecordedOutbox
 from fieldkit.node.startup import start_vehicle
 from fieldkit.record.compare import (
     Decoder,
@@ -249,6 +250,7 @@ def recording_meta(
             "radio": node.radio is not None,
             "started_unix_ns": node.tick_clock.wall(),
         }
+        | ({} if node.outbox is None else {"update_outbox": node.outbox.name})
         | _security_meta(node)
         | _update_meta(node)
         | _link_meta(node, link)
@@ -461,6 +463,12 @@ def _replay(
             lines = [_Line(p.master, p.slave_fd) for p in ptys]
             run = _Replay(flight, link, lines, clock, verify, _decoder(profile, dji), profile)
             ticks = run.start(start)
+            outbox = _recorded_outbox(flight, ticks)
+            if outbox is not None and store is None:
+                raise ReplayError(
+                    "the recorded node read patches from its outbox, but the recording says "
+                    "nothing of its version store: it cannot be replayed"
+                )
             node = Node(
                 profile,
                 program,
@@ -478,6 +486,7 @@ def _replay(
                 command_gate=gate,
                 store=store,
                 keys=keys if store is not None else None,
+                outbox=outbox,
             )
             return run.ticks(node, ticks, speed, progress)
         finally:
@@ -485,6 +494,14 @@ def _replay(
     finally:
         for p in ptys:
             p.close()
+
+
+def _recorded_outbox(flight: Flight, ticks: list[FlightTick]) -> RecordedOutbox | None:
+    """The patches the recorded node read from its outbox, by tick (None: it read none)."""
+    patches = {t.tick: t.outbox for t in ticks if t.outbox}
+    if not patches:
+        return None
+    return RecordedOutbox(patches, str(flight.meta.get("update_outbox", "the recorded outbox")))
 
 
 @dataclass(frozen=True)

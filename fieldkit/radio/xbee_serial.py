@@ -139,6 +139,9 @@ class XBeeRadio:
         self._reopen_at = 0.0
         self._down_since: float | None = None  # when the device was lost, while it is gone
         self._dropped_before = 0  # frames_dropped_down when it was lost
+        #: Times the device was lost, and seconds it was down in the outages that ended.
+        self.outages = 0
+        self.down_s = 0.0
         self._tx = bytearray()
         self._closed = False
         if isinstance(port, str):
@@ -251,6 +254,13 @@ class XBeeRadio:
         """Whether the device this radio opened is lost and not reopened yet."""
         return self._down_since is not None
 
+    def down_for(self, now: float | None = None) -> float:
+        """Seconds the device has been down at `now` (the radio's clock; 0 while it is up)."""
+        since = self._down_since
+        if since is None:
+            return 0.0
+        return max(0.0, (self.clock() if now is None else now) - since)
+
     def _pump(self, now: float) -> None:
         for frame in self.core.frames_to_send(now):
             if self._down_since is not None:
@@ -281,6 +291,7 @@ class XBeeRadio:
             if self._down_since is not None:
                 down = max(0.0, now - self._down_since)
                 self._down_since = None
+                self.down_s += down
                 # A warning like the loss it ends: the node shows fieldkit's library loggers
                 # from warnings up, and the pair brackets the outage in the log.
                 _log.warning(
@@ -306,6 +317,7 @@ class XBeeRadio:
         self._reopen_at = now + self.reopen_interval_s
         if self._down_since is None:
             self._down_since = now
+            self.outages += 1
             self._dropped_before = self.stats["frames_dropped_down"]
             _log.warning("radio: %s lost (%s); reopening", self._path, _reason(what, e))
 

@@ -56,6 +56,7 @@ from fieldkit.record.types import (
     MAVLINK,
     META,
     NAV_SAT_FIX,
+    OUTBOX_PATCH,
     RADIO_FRAME,
     SERIAL_CHUNK,
     STREAM_SEND,
@@ -76,6 +77,7 @@ TOPIC_RADIO_IN = "/radio/in"
 TOPIC_RADIO_OUT = "/radio/out"
 TOPIC_FIX = "/fix"
 TOPIC_BATTERY = "/battery"
+TOPIC_OUTBOX = "/update/outbox"
 
 TOPIC_TYPES: dict[str, str] = {
     TOPIC_META: META,
@@ -87,6 +89,7 @@ TOPIC_TYPES: dict[str, str] = {
     TOPIC_RADIO_OUT: RADIO_FRAME,
     TOPIC_FIX: NAV_SAT_FIX,
     TOPIC_BATTERY: BATTERY_STATE,
+    TOPIC_OUTBOX: OUTBOX_PATCH,
     TOPIC_TICK: TICK,
     TOPIC_GPS_RX: SERIAL_CHUNK,
     TOPIC_STREAM: STREAM_SEND,
@@ -232,6 +235,15 @@ class RadioFrame:
 
 
 @dataclass(frozen=True)
+class OutboxPatch:
+    """A patch the node read from its outbox (/update/outbox): an input of its tick."""
+
+    tick: int
+    data: bytes
+    unix_ns: int
+
+
+@dataclass(frozen=True)
 class MavlinkFrame:
     """One MAVLink frame of /mavlink/from or /mavlink/to: its bytes and pymavlink's decoding."""
 
@@ -270,7 +282,17 @@ class TopicInfo:
     count: int
 
 
-Row = Meta | TickRow | SerialChunk | StreamSend | RadioFrame | MavlinkFrame | Fix | Battery
+Row = (
+    Meta
+    | TickRow
+    | SerialChunk
+    | StreamSend
+    | RadioFrame
+    | OutboxPatch
+    | MavlinkFrame
+    | Fix
+    | Battery
+)
 """Anything `BagReader.rows` yields."""
 
 
@@ -650,6 +672,11 @@ class BagWriter:
     def radio_out(self, tick: int, sender: int, data: bytes, unix_ns: int) -> None:
         """A frame the node sent (`sender`: this robot)."""
         self._put(TOPIC_RADIO_OUT, self._radio(tick, sender, data), self._stamp(unix_ns))
+
+    def outbox(self, tick: int, data: bytes, unix_ns: int) -> None:
+        """A patch the node read from its outbox at the start of `tick`."""
+        msg = self._types[OUTBOX_PATCH](tick=tick, data=np.frombuffer(data, dtype=np.uint8))
+        self._put(TOPIC_OUTBOX, msg, self._stamp(unix_ns))
 
     def fix(self, lat: float, lon: float, alt: float, unix_ns: int, has_fix: bool = True) -> None:
         """A position on /fix (`tick` writes one each tick; a tlog conversion calls this)."""
@@ -1251,6 +1278,12 @@ class BagReader:
         """/radio/out: the frames the node sent."""
         yield from self._radio(TOPIC_RADIO_OUT)
 
+    def outbox(self) -> Iterator[OutboxPatch]:
+        """/update/outbox: the patches the node read from its outbox."""
+        for _, row in self.rows(TOPIC_OUTBOX):
+            assert isinstance(row, OutboxPatch)
+            yield row
+
     def mavlink_from(self) -> Iterator[MavlinkFrame]:
         """/mavlink/from: the autopilot's frames, decoded with pymavlink."""
         yield from self._mavlink(TOPIC_MAVLINK_FROM)
@@ -1388,6 +1421,8 @@ def _to_row(topic: str, msg: Any, stamp: int) -> Row:
             int(msg.tick), int(msg.sender), bytes(msg.data), stamp,
             float(msg.east), float(msg.north),
         )  # fmt: skip
+    if topic == TOPIC_OUTBOX:
+        return OutboxPatch(int(msg.tick), bytes(msg.data), stamp)
     if topic in (TOPIC_MAVLINK_FROM, TOPIC_MAVLINK_TO):
         frame = mavlink_frame(msg)
         return MavlinkFrame(stamp, frame, _decode_frame(frame))
@@ -1414,6 +1449,7 @@ __all__ = [
     "TOPIC_MAVLINK_FROM",
     "TOPIC_MAVLINK_TO",
     "TOPIC_META",
+    "TOPIC_OUTBOX",
     "TOPIC_RADIO_IN",
     "TOPIC_RADIO_OUT",
     "TOPIC_RX",
@@ -1428,6 +1464,7 @@ __all__ = [
     "Fix",
     "MavlinkFrame",
     "Meta",
+    "OutboxPatch",
     "RadioFrame",
     "Row",
     "SerialChunk",

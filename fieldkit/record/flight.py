@@ -8,11 +8,11 @@ A `Flight` is what a recording holds and what a replay needs (docs/recording.md)
     bo, bdb, bpos the script as it ran
     startup_rx/tx the autopilot's bytes before the first tick (heartbeat, streams, GPS fix)
     startup_gps_rx  a GPS receiver's bytes before the first tick (a base with its own GPS)
-    ticks         per tick: its time, the radio frames in and out, the autopilot's bytes in
-                  and out, a separate GPS receiver's bytes in, the times at which the link's
-                  own thread sent a frame (the M100's movement stream), the script-state
-                  digest, the state, the order, the supervisor's events, the script's lines,
-                  the sensors
+    ticks         per tick: its time, the radio frames in and out, the patches read from the
+                  outbox (an originator's), the autopilot's bytes in and out, a separate GPS
+                  receiver's bytes in, the times at which the link's own thread sent a frame
+                  (the M100's movement stream), the script-state digest, the state, the
+                  order, the supervisor's events, the script's lines, the sensors
 
 `FlightRecorder` builds one from a node's hooks (`fieldkit.node.node.FlightRecorder`) and the
 autopilot link's byte taps; each finished tick also goes to `on_tick`, so that a bag writer
@@ -61,6 +61,8 @@ class FlightTick:
     #: from a node.
     radio_where: list[tuple[float, float]] = field(default_factory=list)
     radio_out: list[bytes] = field(default_factory=list)
+    #: Patches the node read from its outbox at the start of the tick (`--update-outbox`).
+    outbox: list[bytes] = field(default_factory=list)
     autopilot_rx: list[bytes] = field(default_factory=list)
     autopilot_tx: list[bytes] = field(default_factory=list)
     #: Bytes read from a GPS receiver on a port of its own (a Clearpath base's), in order.
@@ -161,6 +163,11 @@ class FlightRecorder:
         """A frame the node sent."""
         assert self.current is not None
         self.current.radio_out.append(bytes(data))
+
+    def outbox_in(self, data: bytes) -> None:
+        """A patch the node read from its outbox."""
+        assert self.current is not None
+        self.current.outbox.append(bytes(data))
 
     def end_tick(self, record: TickRecord, digest: bytes, log: list[str]) -> None:
         """The tick ran."""

@@ -70,6 +70,8 @@ class FlightBag:
         wheres = t.radio_where if len(t.radio_where) == len(t.radio_in) else None
         for k, (sender, data) in enumerate(t.radio_in):
             w.radio_in(t.tick, sender, data, ns, None if wheres is None else wheres[k])
+        for patch in t.outbox:
+            w.outbox(t.tick, patch, ns)
         for chunk in t.autopilot_rx:
             w.autopilot_rx(t.tick, chunk, ns)
         for at in t.stream_s:
@@ -184,6 +186,9 @@ def read_flight(path: Path | str) -> Flight:
     for frame in reader.radio_out():
         if (t := at(frame.tick, "a radio frame")) is not None:
             t.radio_out.append(frame.data)
+    for patch in reader.outbox():
+        if (t := at(patch.tick, "an outbox patch")) is not None:
+            t.outbox.append(patch.data)
     flight.ticks = [by_tick[k] for k in sorted(by_tick)]
     if cut:
         flight.meta["cut_at_tick"] = min(cut)  # what a crash left of the last tick

@@ -26,10 +26,11 @@ SERIAL_CHUNK = "fieldkit_msgs/msg/SerialChunk"
 RADIO_FRAME = "fieldkit_msgs/msg/RadioFrame"
 TICK = "fieldkit_msgs/msg/Tick"
 STREAM_SEND = "fieldkit_msgs/msg/StreamSend"
+OUTBOX_PATCH = "fieldkit_msgs/msg/OutboxPatch"
 NAV_SAT_FIX = "sensor_msgs/msg/NavSatFix"
 BATTERY_STATE = "sensor_msgs/msg/BatteryState"
 
-OWN_TYPES = (MAVLINK, META, SERIAL_CHUNK, RADIO_FRAME, TICK, STREAM_SEND)
+OWN_TYPES = (MAVLINK, META, SERIAL_CHUNK, RADIO_FRAME, TICK, OUTBOX_PATCH, STREAM_SEND)
 """The types registered from our `.msg` files."""
 USED_TYPES = (
     *OWN_TYPES,
@@ -89,6 +90,7 @@ __all__ = [
     "META",
     "MSGS_PACKAGE",
     "NAV_SAT_FIX",
+    "OUTBOX_PATCH",
     "OWN_TYPES",
     "RADIO_FRAME",
     "SERIAL_CHUNK",

@@ -724,6 +724,18 @@ class Simulation:
                 if progress is not None:
                     progress(self.tick, total)
 
+    def kill(self, rid: int) -> SimRobot:
+        """Take robot `rid` out of the swarm between two ticks, as a hardware loss or a flat
+        battery would: it neither steps nor sends again, and nobody hears it any more (bundles
+        already in flight to it are dropped on arrival). Returns the dead robot (KeyError if
+        there is no such robot alive)."""
+        robot = self.robots.pop(rid)
+        self._hear.pop(rid, None)
+        self._heard.pop(rid, None)
+        # Its replay window (signed runs) stays: deliveries already in flight still pass it.
+        self._log_line(self.tick, f"robot {rid} killed")
+        return robot
+
     def in_failsafe(self) -> list[int]:
         """The robots a script error left in their failsafe (stopped, not restarted), by id."""
         return [r.id for r in self.robots.values() if r.in_failsafe]

@@ -60,6 +60,14 @@ class RobotUpdater:
             return True
         return False
 
+    def inject(self, patch: bytes) -> bool:
+        """A whole patch made on this robot (the originator's outbox): verified as if
+        received, then served to the neighbours; True if it checked out. Its verdict is
+        logged at once, and a patch that checked out is kept (`on_patch`)."""
+        ok = self.agent.inject(patch)
+        self._flush()
+        return ok
+
     def before_step(self, sensors: Sensors) -> None:
         """Carry out the agent's decision for this tick on the runtime."""
         self._note_failure()

@@ -7,7 +7,9 @@ A sentence is ``$`` + address (talker and type, e.g. ``GPGGA``) + ``,``-separate
 pynmea2's (`pynmea2.parse(..., check=True)`), a maintained parser, not ours; this module adds
 what pynmea2 does not say: which byte is bad. pynmea2's own `NMEAStreamReader` is not the
 de-framer because it keeps an unbounded line, parses without the checksum check and cannot
-resynchronise inside a line (``noise$GPGGA,...`` is one failed line to it).
+resynchronise inside a line (``noise$GPGGA,...`` is one failed line to it). `cut_sentence`
+is: a ``$`` up to the LF, restarting at a later ``$``, bounded; the Husky's GPS input cuts
+its stream with it too.
 
 `describe_sentence` checks the layout itself first (printable ASCII, the ``$``, the address,
 the ``*hh``) so that each failure names its byte, then lets pynmea2 compare the checksum (a
@@ -115,41 +117,58 @@ def describe_sentence(data: bytes) -> dict[str, Any]:
     return out
 
 
-def _sentence_in(line: bytes, stats: Counter[str]) -> bytes | None:
-    """The sentence a line ends with, from its earliest ``$`` that starts a valid one
-    (noise before it, or a sentence cut off by it, is skipped); None if none does."""
-    start = max(0, len(line) - MAX_LINE)
-    tried = False
-    while (i := line.find(b"$", start)) >= 0:
-        tried = True
-        try:
-            describe_sentence(line[i:])
-        except FrameError:
-            start = i + 1
-            continue
-        return line[i:]
-    if tried:
+def cut_sentence(
+    buf: bytes | bytearray, start: int, max_line: int = MAX_LINE
+) -> tuple[int, bool] | None:
+    """Where the candidate that starts with the ``$`` at ``buf[start]`` ends, and whether it
+    is a whole line: ``(end, True)`` for ``buf[start:end]``, a line with its LF, to parse;
+    ``(end, False)`` for bytes that are no sentence, to skip (no LF within `max_line` bytes,
+    or another ``$`` before it: the sentence was cut short and the next may start there);
+    None while the line end may still come.
+
+    The one NMEA de-framer: `deframe` here and the Husky's GPS input
+    (fieldkit.vehicle.clearpath.gps, which also cuts UBX frames between sentences) use it.
+    """
+    lf = buf.find(b"\n", start, start + max_line + 1)
+    if lf < 0:
+        return None if len(buf) - start <= max_line else (start + 1, False)
+    other = buf.find(b"$", start + 1, lf)
+    if other >= 0:
+        return other, False
+    return lf + 1, True
+
+
+def _valid(sentence: bytes, stats: Counter[str]) -> bool:
+    """Whether `sentence` is one valid sentence; a bad one counts in stats["bad_frames"]."""
+    try:
+        describe_sentence(sentence)
+    except FrameError:
         stats["bad_frames"] += 1
-    return None
+        return False
+    return True
 
 
 def deframe(chunks: Iterable[bytes], stats: Counter[str]) -> Iterator[bytes]:
     """Every valid sentence of a raw byte stream, as its bytes with its line end.
 
-    Lines end at LF; in each, the sentence starts at the first ``$`` from which the rest of
-    the line is a valid sentence, so noise before a sentence or a truncated one before it
-    costs nothing. A line that has a ``$`` but no valid sentence counts in
-    stats["bad_frames"]. At most MAX_LINE bytes of a line are kept, whatever the noise.
+    `cut_sentence` finds the candidates: from a ``$`` to the LF, restarting at a later ``$``
+    (noise before a sentence, or a truncated one, costs nothing); a candidate that is not a
+    valid sentence counts in stats["bad_frames"]. At most MAX_LINE bytes of a line are
+    kept, whatever the noise; the end of the stream ends its last line.
     """
-    pending = b""
+    buf = bytearray()
     for chunk in chunks:
-        lines = (pending + bytes(chunk)).split(b"\n")
-        pending = lines.pop()[-MAX_LINE:]
-        for line in lines:
-            sentence = _sentence_in(line + b"\n", stats)
-            if sentence is not None:
+        buf += chunk
+        i = 0
+        while (i := buf.find(b"$", i)) >= 0:
+            cut = cut_sentence(buf, i)
+            if cut is None:
+                break  # the rest of the line is on its way
+            end, whole = cut
+            if whole and _valid(sentence := bytes(buf[i:end]), stats):
                 yield sentence
-    if pending:  # the stream ended without a line end
-        sentence = _sentence_in(pending, stats)
-        if sentence is not None:
+            i = end
+        del buf[: len(buf) if i < 0 else i]
+    if buf:  # a last line without its line end: from its last '$', as a cut one would be
+        if _valid(sentence := bytes(buf[buf.rfind(b"$") :]), stats):
             yield sentence

@@ -39,6 +39,7 @@ class ReopenPolicy:
         self.reason = ""  # why it was lost
         self.attempts = 0  # failed attempts in this outage
         self.outages = 0  # losses so far, this one included
+        self.down_s = 0.0  # seconds down in the outages that ended
         self._next = 0.0
 
     @property
@@ -71,6 +72,13 @@ class ReopenPolicy:
     def back(self, now: float) -> float:
         """The device opened again at `now`: seconds it was down (0 if it was not)."""
         since, self.down_since = self.down_since, None
+        down = 0.0 if since is None else max(0.0, now - since)
+        self.down_s += down
+        return down
+
+    def down_for(self, now: float) -> float:
+        """Seconds the device has been down at `now` (0 while it is up)."""
+        since = self.down_since
         return 0.0 if since is None else max(0.0, now - since)
 
 

@@ -299,6 +299,42 @@ def test_the_originator_gets_the_update_monitor(tmp_path: Path, keys: Path) -> N
     assert "fieldkit-update.service" in result.stdout
     tmpfiles = (root / "usr/lib/tmpfiles.d/fieldkit.conf").read_text()
     assert "Z /etc/fieldkit/operator-keys ~0700 fieldkit fieldkit -" in tmpfiles
+    # The node originates what the monitor writes: the outbox in its config, and the keys
+    # that verify the patches (taken from --operator-keys: no --keys was given).
+    from fieldkit.node.config import load_config
+
+    config = load_config(root / CONFIG)
+    assert config.node["update_outbox"] == "/var/lib/fieldkit/outbox/update.patch"
+    assert (config.node["keys"], config.node["security"]) == ("/etc/fieldkit/keys", "signed")
+    robot_keys = root / "etc/fieldkit/keys"
+    assert sorted(p.name for p in robot_keys.iterdir()) == ["operator.pub", "swarm.key"]
+    assert all((robot_keys / n).read_bytes() == (keys / n).read_bytes() for n in
+               ("operator.pub", "swarm.key"))  # fmt: skip
+    # The node's unit may read it: the outbox is inside its StateDirectory= (writable, so
+    # readable, under ProtectSystem=strict), hidden by no path rule, and both units run as
+    # one user (the outbox is 0700).
+    node_unit = "etc/systemd/system/fieldkit-node.service"
+    assert unit_lines(root, "ProtectSystem", node_unit) == ["strict"]
+    assert unit_lines(root, "StateDirectory", node_unit) == ["fieldkit"]
+    assert unit_lines(root, "StateDirectory", unit) == ["fieldkit/outbox"]
+    for rule in ("InaccessiblePaths", "ReadOnlyPaths", "TemporaryFileSystem", "PrivateUsers"):
+        assert unit_lines(root, rule, node_unit) == []
+    assert unit_lines(root, "User", node_unit) == unit_lines(root, "User", unit) == ["fieldkit"]
+
+
+def test_an_originators_keys_must_be_one_swarms(tmp_path: Path, keys: Path) -> None:
+    """--keys beside --operator-keys must hold the same two public files: the node would
+    refuse every patch its monitor signs otherwise."""
+    from fieldkit.update.keys import init_keys
+
+    other = tmp_path / "other"
+    init_keys(other)
+    root = tmp_path / "root"
+    result = deploy("--profile", "solo", "--root", root, "--script", TASKS, "--originator",
+                    "--operator-keys", keys, "--keys", other)  # fmt: skip
+    assert result.exit_code == 1, result.output
+    assert "hold different operator.pub or swarm.key" in result.stderr
+    assert not root.exists() or not any(root.rglob("*.toml"))
 
 
 @pytest.mark.parametrize(

@@ -119,7 +119,7 @@ def reference_deframe(
         try:
             frame = decode(stream[p : p + length], cipher)
         except FrameError as e:
-            if e.offset == length - 4 and "CRC32" in e.problem:
+            if e.offset == length - 4 and "CRC32" in e.what:
                 stats["crc_errors"] += 1
                 noise(1)
                 p += 1

@@ -103,6 +103,10 @@ class Experiment(ABC):
         """The ground station's schedule as summary.json gives it (seconds)."""
         return {"takeoff": TAKEOFF_S, "mission": MISSION_S}
 
+    def events(self) -> tuple[tuple[float, str], ...]:
+        """Moments plot.png marks besides the mission command: (seconds, what)."""
+        return ()
+
     @abstractmethod
     def commands(self, spec: RunSpec) -> list[RcCommand]:
         """The ground station's RC codes for one run."""
@@ -134,6 +138,7 @@ class RunSpec:
     include_dirs: tuple[str, ...] = ()
     shape: str | None = None  # task allocation: the task graph
     swarm_key: bytes | None = None  # signed bundles (None: plain, ROSBuzz's bytes)
+    burst: float | None = None  # bursty losses: mean burst length in ticks (Gilbert-Elliott)
 
     def commands(self) -> list[RcCommand]:
         """The ground station's RC codes for this run."""
@@ -149,6 +154,7 @@ class RunSpec:
             script=Path(self.script),
             robots=self.robots,
             drop=self.drop,
+            burst=self.burst,
             seconds=self.seconds,
             seed=self.seed,
             commands=self.commands(),

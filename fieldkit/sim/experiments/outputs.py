@@ -59,6 +59,7 @@ def summarize(plan: Plan, results: Sequence[RunResult]) -> dict[str, object]:
         "script": Path(plan.script).name,
         "robots": _one_or_all(plan.robots),
         "drop": _one_or_all(plan.drops),
+        **({} if plan.burst is None else {"burst": plan.burst}),
         "runs": plan.runs,
         "seed": plan.seed,
         "seeds": [r.spec.seed for r in results],

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from fieldkit.sim.experiments.base import MISSION_S, Experiment, ExperimentError, RunSpec
 from fieldkit.sim.experiments.catalogue import EXPERIMENTS, SCRIPT_DIR
+from fieldkit.sim.radio import LinkModel
 
 #: Bounds on the parameters (beyond them a run is either meaningless or would take days).
 MAX_ROBOTS = 1000
@@ -28,6 +29,7 @@ class Plan:
     seconds: float
     script: str
     swarm_key: bytes | None = None  # signed bundles under this key (docs/security.md)
+    burst: float | None = None  # bursty losses of this mean length (ticks) at every drop
 
     def specs(self) -> list[RunSpec]:
         """The runs, in grid order (robots, then drop, then run): the order of every output."""
@@ -42,6 +44,7 @@ class Plan:
             script=self.script,
             include_dirs=(str(Path(self.script).parent),),
             swarm_key=self.swarm_key,
+            burst=self.burst,
         )
         out = []
         for n in self.robots:
@@ -65,6 +68,7 @@ def make_plan(
     seconds: float | None = None,
     script: str | Path | None = None,
     swarm_key: bytes | None = None,
+    burst: float | None = None,
 ) -> Plan:
     """Validate the parameters of experiment `name` and build its grid (ExperimentError)."""
     e = EXPERIMENTS.get(name)
@@ -92,8 +96,24 @@ def make_plan(
             f"--seconds must be more than {MISSION_S:g} (the mission starts at "
             f"{MISSION_S:g} s) and at most {MAX_SECONDS:g}, got {seconds:g}"
         )
+    if burst is not None:
+        _check_burst(burst, drops_t)
     path = Path(script) if script is not None else SCRIPT_DIR / e.script
-    return Plan(e, robots_t, drops_t, runs, seed, float(seconds), str(path.resolve()), swarm_key)
+    return Plan(
+        e, robots_t, drops_t, runs, seed, float(seconds), str(path.resolve()), swarm_key, burst
+    )
+
+
+def _check_burst(burst: float, drops: Iterable[float]) -> None:
+    """Raise ExperimentError unless bursts of mean length `burst` can make every drop rate."""
+    if not math.isfinite(burst) or burst < 1.0:
+        raise ExperimentError(f"--burst must be a mean of at least 1 tick, got {burst:g}")
+    for d in drops:
+        if d:
+            try:
+                LinkModel.bursty(d, burst)
+            except ValueError as err:
+                raise ExperimentError(f"--drop {d:g} with --burst {burst:g}: {err}") from None
 
 
 def check_script(plan: Plan) -> None:

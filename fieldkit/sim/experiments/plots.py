@@ -31,6 +31,8 @@ def _label(plan: Plan, spec: RunSpec) -> str:
         parts.append(f"{spec.robots} robots{shape}")
     if len(plan.drops) > 1 or spec.drop:
         parts.append(f"drop {spec.drop:g}")
+    if spec.burst is not None and spec.drop:
+        parts.append(f"bursts of {spec.burst:g}")
     return ", ".join(parts)
 
 
@@ -73,7 +75,11 @@ def plot_experiment(plan: Plan, results: Sequence[RunResult], path: Path) -> Non
         if len(rs) > 1:
             ax.fill_between(times, low, high, color=line.get_color(), alpha=0.15, lw=0)
     ax.axvline(MISSION_S, color="grey", ls=":", lw=1)
-    ax.set_xlabel("simulated time (s); dotted: mission command")
+    events = e.events()
+    for t, _ in events:
+        ax.axvline(t, color="red", ls="--", lw=1)
+    marks = "".join(f"; dashed: {what}" for _, what in events[:1])
+    ax.set_xlabel(f"simulated time (s); dotted: mission command{marks}")
     runs = f", mean and range of {plan.runs} runs" if plan.runs > 1 else ""
     drop = f", drop {plan.drops[0]:g}" if len(plan.drops) == 1 else ""
     ax.set_title(f"{e.name} ({e.figure}){drop}{runs}", fontsize=10)

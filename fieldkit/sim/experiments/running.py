@@ -20,7 +20,6 @@ def run_one(spec: RunSpec, progress: Callable[[int], None] | None = None) -> Run
     air_sum = air_count = air_max = 0
     last_total, last_bundles = sim.total_bundle, sim.bundles
     air_all = air_all_count = air_all_max = 0
-    robots = list(sim.robots.values())
     while sim.tick < total:
         sim.step()
         step_bytes = sim.radio.step_bytes().values()
@@ -55,7 +54,7 @@ def run_one(spec: RunSpec, progress: Callable[[int], None] | None = None) -> Run
         "air_steps": air_all_count,
         "max_air_bytes": air_all_max,
         "seconds_simulated": summary["seconds_simulated"],
-        "final_states": dict(sorted(Counter(str(r.state) for r in robots).items())),
+        "final_states": dict(sorted(Counter(str(r.state) for r in sim.robots.values()).items())),
         "errors": summary["errors"],
         **probe.figures(result.rows[-1] if result.rows else {}),
     }

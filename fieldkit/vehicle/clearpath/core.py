@@ -216,6 +216,9 @@ class HuskyCore:
         self._hb_lost = False
         self._link_failing = False
         self._last_cycle: float | None = None
+        # When the host last began asking again after a pause of its own (a slow start-up):
+        # the MCU answers only when asked, so its silence counts from then, not from before.
+        self._asking_since: float | None = None
         self._last_diag: float | None = None
         self._yaw: float | None = None  # NED radians: 0 north, clockwise
         self._yaw_source = "none"
@@ -299,9 +302,14 @@ class HuskyCore:
         return tuple(self._commands) + tuple(self._stops)
 
     def heartbeat_age(self) -> float:
-        """Seconds since the MCU last answered (inf before the first time)."""
+        """Seconds the MCU has left the host's requests unanswered: since its last answer, or
+        since the host began asking again after a pause (inf before the first answer)."""
         last = self.telemetry.last_heartbeat
-        return math.inf if last is None else max(0.0, self._clock() - last)
+        if last is None:
+            return math.inf
+        if self._asking_since is not None:
+            last = max(last, self._asking_since)
+        return max(0.0, self._clock() - last)
 
     @property
     def heartbeat_lost(self) -> bool:
@@ -332,6 +340,7 @@ class HuskyCore:
             "last_heartbeat": t.last_heartbeat,
             "last_message": t.last_message,
             "last_cycle": self._last_cycle,
+            "asking_since": self._asking_since,
             "last_diag": self._last_diag,
             "gps_last_fix": self.gps.fix.last_fix,
             "gps_last_heard": self.gps.fix.last_heard,
@@ -351,6 +360,7 @@ class HuskyCore:
         self.telemetry.last_heartbeat = num("last_heartbeat")
         self.telemetry.last_message = num("last_message")
         self._last_cycle = num("last_cycle")
+        self._asking_since = num("asking_since")
         self._last_diag = num("last_diag")
         self.gps.fix.last_fix = num("gps_last_fix")
         self.gps.fix.last_heard = num("gps_last_heard")
@@ -556,9 +566,11 @@ class HuskyCore:
         if had_fix and not self.gps.has_fix:
             self._update_position()
         self._expire(now)
-        last = self.telemetry.last_heartbeat
-        if last is not None:
-            age = now - last
+        if self._last_cycle is not None and now - self._last_cycle > self.heartbeat_timeout_s / 2:
+            # The host asked nothing for a while (its loop was held up): not the MCU's silence.
+            self._asking_since = now
+        if self.telemetry.last_heartbeat is not None:
+            age = self.heartbeat_age()
             if age > self.heartbeat_timeout_s and not self._hb_lost:
                 self._hb_lost = True
                 self._event("heartbeat", f"MCU silent: no answer for {age:.1f} s")

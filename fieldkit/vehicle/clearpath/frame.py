@@ -22,7 +22,10 @@ from __future__ import annotations
 
 import struct
 from collections import Counter
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+
+from fieldkit.errors import FrameError
 
 SOH = 0xAA
 """First byte of every frame."""
@@ -62,16 +65,6 @@ def crc16(data: bytes | bytearray | memoryview, crc: int = 0xFFFF) -> int:
     for b in data:
         crc = ((crc << 8) & 0xFFFF) ^ table[(crc >> 8) ^ b]
     return crc
-
-
-class FrameError(ValueError):
-    """A byte string that is not one valid frame; `offset` is the first bad byte."""
-
-    def __init__(self, offset: int, reason: str) -> None:
-        """`reason` says what is wrong at byte `offset` of the frame."""
-        super().__init__(f"byte {offset}: {reason}")
-        self.offset = offset
-        self.reason = reason
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,28 +107,28 @@ def parse_frame(data: bytes) -> Frame:
     n = len(data)
     if n < 1 or data[0] != SOH:
         raise FrameError(
-            0, f"not the start of a frame (0x{data[0]:02X}, want 0xAA)" if n else "empty"
+            f"not the start of a frame (0x{data[0]:02X}, want 0xAA)" if n else "empty", 0
         )
     if n < 3:
-        raise FrameError(n, f"truncated: {n} bytes, a frame has at least {MIN_FRAME}")
+        raise FrameError(f"truncated: {n} bytes, a frame has at least {MIN_FRAME}", n)
     length = data[1]
     if length ^ data[2] != 0xFF:
-        raise FrameError(2, f"0x{data[2]:02X} is not the complement of LEN 0x{length:02X}")
+        raise FrameError(f"0x{data[2]:02X} is not the complement of LEN 0x{length:02X}", 2)
     if length + 3 < MIN_FRAME:
-        raise FrameError(1, f"LEN {length} is shorter than a header and CRC ({MIN_FRAME - 3})")
+        raise FrameError(f"LEN {length} is shorter than a header and CRC ({MIN_FRAME - 3})", 1)
     if length + 3 > MAX_FRAME:
-        raise FrameError(1, f"LEN {length} is longer than a frame may be ({MAX_FRAME - 3})")
+        raise FrameError(f"LEN {length} is longer than a frame may be ({MAX_FRAME - 3})", 1)
     want = length + 3
     if n < want:
-        raise FrameError(n, f"truncated: {n} bytes, LEN says {want}")
+        raise FrameError(f"truncated: {n} bytes, LEN says {want}", n)
     if n > want:
-        raise FrameError(want, f"{n - want} bytes after the frame's end (LEN says {want})")
+        raise FrameError(f"{n - want} bytes after the frame's end (LEN says {want})", want)
     if data[11] != STX:
-        raise FrameError(11, f"0x{data[11]:02X} where STX 0x55 belongs")
+        raise FrameError(f"0x{data[11]:02X} where STX 0x55 belongs", 11)
     got = int.from_bytes(data[want - 2 : want], "little")
     crc = crc16(data[: want - 2])
     if got != crc:
-        raise FrameError(want - 2, f"CRC 0x{got:04X}, computed 0x{crc:04X}")
+        raise FrameError(f"CRC 0x{got:04X}, computed 0x{crc:04X}", want - 2)
     _, _, _, version, timestamp, flags, type_, _ = _HEADER.unpack_from(data)
     return Frame(type_, bytes(data[HEADER_LEN : want - 2]), flags, timestamp, version)
 
@@ -224,6 +217,21 @@ class FrameReader:
         self.stats["garbage_bytes"] += 1
 
 
+def deframe(chunks: Iterable[bytes], stats: Counter[str]) -> Iterator[bytes]:
+    """The bytes of every frame `FrameReader` finds in a byte stream (a valid frame encodes
+    back to exactly its bytes); stats["bad_frames"] counts the candidates it rejects, and a
+    frame the stream ended inside."""
+    reader = FrameReader()
+    for chunk in chunks:
+        seen = reader.bad_frames
+        found = reader.feed(chunk)
+        stats["bad_frames"] += reader.bad_frames - seen
+        for frame in found:
+            yield frame.encode()
+    if reader.pending >= HEADER_LEN:  # a checked header whose frame never ended
+        stats["bad_frames"] += 1
+
+
 __all__ = [
     "MAX_FRAME",
     "MAX_PAYLOAD",
@@ -235,5 +243,6 @@ __all__ = [
     "FrameError",
     "FrameReader",
     "crc16",
+    "deframe",
     "parse_frame",
 ]

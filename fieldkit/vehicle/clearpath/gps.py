@@ -6,8 +6,9 @@
     gps.fix.fix_type, gps.fix.lat, gps.fix.speed_mps, gps.fix.track_deg, gps.fix.satellites
     for event in gps.drain_events(): log(event.text)
 
-The byte stream is cut into NMEA sentences (`$` ... LF) and UBX frames (`B5 62` class id length
-payload checksum); the parsing, checksums included, is the libraries': `pynmea2.parse(...,
+The byte stream is cut into NMEA sentences (`$` ... LF, by the inspector's NMEA de-framer,
+`fieldkit.vehicle.nmea.cut_sentence`) and UBX frames (`B5 62` class id length payload
+checksum); the parsing, checksums included, is the libraries': `pynmea2.parse(...,
 check=True)` for sentences, `pyubx2.UBXReader.parse(..., validate=VALCKSUM)` for frames. What
 neither accepts is counted (`bad_sentences`, `garbage_bytes`), never raised, and reported once
 per streak as a "gps" event.
@@ -35,6 +36,7 @@ import pynmea2
 import pyubx2
 
 from fieldkit.vehicle.autopilot import Event
+from fieldkit.vehicle.nmea import cut_sentence
 
 KNOT_MPS = 0.514444444444
 """One knot in m/s."""
@@ -118,21 +120,15 @@ class GpsCore:
         while i < n:
             b = buf[i]
             if b == 0x24:  # "$"
-                end = buf.find(b"\n", i, i + MAX_SENTENCE + 1)
-                if end < 0:
-                    if n - i <= MAX_SENTENCE:
-                        break  # the rest of the line is on its way
-                    self._garbage(1)  # no line end in reach: not a sentence
-                    i += 1
-                    continue
-                line = bytes(buf[i:end])
-                nxt = line.find(b"$", 1)
-                if nxt > 0:  # a sentence cut short by another: the first is garbage
-                    self._garbage(nxt)
-                    i += nxt
-                    continue
-                handled += self._sentence(line)
-                i = end + 1
+                cut = cut_sentence(buf, i, MAX_SENTENCE)
+                if cut is None:
+                    break  # the rest of the line is on its way
+                end, whole = cut
+                if whole:
+                    handled += self._sentence(bytes(buf[i:end]))
+                else:  # no line end in reach, or cut short by another sentence
+                    self._garbage(end - i)
+                i = end
             elif b == 0xB5:
                 if n - i < 6:
                     if n - i > 1 and buf[i + 1] != 0x62:

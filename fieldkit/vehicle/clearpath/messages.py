@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass
 from enum import IntEnum
 from typing import Any
 
-from fieldkit.vehicle.clearpath.frame import Frame
+from fieldkit.vehicle.clearpath.frame import Frame, parse_frame
 
 
 class MsgType(IntEnum):
@@ -544,3 +544,9 @@ def fields(frame: Frame, *, from_host: bool | None = None) -> dict[str, Any]:
             payload["data_name"] = name_of(value.data_type)
     out["payload"] = payload
     return out
+
+
+def describe_frame(data: bytes) -> dict[str, Any]:
+    """`fieldkit frames decode clearpath`: `fields` of exactly one frame; FrameError (from
+    `parse_frame`) naming the first bad byte."""
+    return fields(parse_frame(data))

@@ -18,9 +18,12 @@ that started inside the broken one is still found (what DJI's receiver does, spe
 
 from __future__ import annotations
 
+from collections import Counter
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from typing import Any
 
-from fieldkit.errors import FieldkitError
+from fieldkit.errors import FrameError
 from fieldkit.vehicle.dji.crc import crc16, crc32
 from fieldkit.vehicle.dji.crypto import BLOCK, FrameCipher, padding_for
 
@@ -42,16 +45,6 @@ ENC_AES = 1
 """ENC field: AES-256 (spec §5)."""
 MAX_SESSION = 31
 """Sessions are 0..31 (5 bits)."""
-
-
-class FrameError(FieldkitError, ValueError):
-    """A frame that fails its layout or a checksum; `offset` is the first bad byte."""
-
-    def __init__(self, offset: int, problem: str) -> None:
-        """`problem` at byte `offset` of the frame (0 is the SOF)."""
-        super().__init__(f"byte {offset}: {problem}")
-        self.offset = offset
-        self.problem = problem
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,8 +85,9 @@ class Frame:
         return self.data[2:]
 
     def describe(self) -> dict[str, object]:
-        """The fields under the names of the spec (and `fieldkit frames decode dji`)."""
-        return {
+        """The fields under the names of the spec (and `fieldkit frames decode dji`); an
+        encrypted frame adds `decrypted` (false: `data` is the ciphertext, padding included)."""
+        out: dict[str, object] = {
             "session": self.session,
             "ack": int(self.ack),
             "seq": self.seq,
@@ -102,6 +96,9 @@ class Frame:
             "cmd_id": self.cmd_id,
             "data": self.value.hex(),
         }
+        if self.enc:
+            out["decrypted"] = self.readable
+        return out
 
     def encode(self, cipher: FrameCipher | None = None) -> bytes:
         """This frame's bytes (encrypted with `cipher` when `enc` is set)."""
@@ -223,24 +220,46 @@ def decode(raw: bytes | bytearray | memoryview, cipher: FrameCipher | None = Non
     raw = bytes(raw)
     if len(raw) < HEADER_LEN:
         if raw and raw[0] != SOF:
-            raise FrameError(0, f"start of frame 0x{raw[0]:02x}, not 0xaa")
-        raise FrameError(len(raw), f"{len(raw)} bytes: a frame has a 12-byte header")
+            raise FrameError(f"start of frame 0x{raw[0]:02x}, not 0xaa", 0)
+        raise FrameError(f"{len(raw)} bytes: a frame has a 12-byte header", len(raw))
     problem = header_problem(raw)
     if problem is not None:
-        raise FrameError(*problem)
+        raise FrameError(problem[1], problem[0])
     length = frame_length(raw)
     if len(raw) < length:
-        raise FrameError(len(raw), f"truncated: {len(raw)} bytes of a {length}-byte frame")
+        raise FrameError(f"truncated: {len(raw)} bytes of a {length}-byte frame", len(raw))
     if len(raw) > length:
-        raise FrameError(length, f"{len(raw) - length} bytes after the {length}-byte frame")
+        raise FrameError(f"{len(raw) - length} bytes after the {length}-byte frame", length)
     if length > HEADER_LEN and crc32(raw) != 0:
         want = crc32(raw[: length - CRC32_LEN])
         got = int.from_bytes(raw[length - CRC32_LEN :], "little")
-        raise FrameError(length - CRC32_LEN, f"CRC32 0x{got:08x}, the frame's is 0x{want:08x}")
+        raise FrameError(f"CRC32 0x{got:08x}, the frame's is 0x{want:08x}", length - CRC32_LEN)
     frame, offset, why = _open(raw, cipher)
     if frame is None:
-        raise FrameError(offset, why)
+        raise FrameError(why, offset)
     return frame
+
+
+def describe_frame(raw: bytes, cipher: FrameCipher | None = None) -> dict[str, Any]:
+    """`fieldkit frames decode dji`: the fields of exactly one frame (`Frame.describe`), an
+    encrypted one decrypted with `cipher` if given; FrameError naming the first bad byte."""
+    return decode(raw, cipher).describe()
+
+
+def deframe(
+    chunks: Iterable[bytes], stats: Counter[str], cipher: FrameCipher | None = None
+) -> Iterator[bytes]:
+    """The bytes of every frame `FrameReader` finds in a byte stream (encrypted ones too,
+    readable or not: `describe_frame` shows them); stats["bad_frames"] counts the frames
+    rejected: a good header with a bad CRC32, or one the stream ended inside."""
+    reader = FrameReader(cipher)
+    for chunk in chunks:
+        seen = reader.crc_errors
+        found = reader.feed_raw(chunk)
+        stats["bad_frames"] += reader.crc_errors - seen
+        yield from found
+    if reader.pending >= HEADER_LEN:  # a good header whose frame never ended
+        stats["bad_frames"] += 1
 
 
 class FrameReader:
@@ -271,9 +290,23 @@ class FrameReader:
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """The frames completed by `data`, in order."""
+        out: list[Frame] = []
+        for raw in self.feed_raw(data):
+            frame, _, _ = _open(raw, self.cipher)
+            if frame is None or not frame.readable:
+                self.undecryptable += 1
+                self.bad_frames += 1
+                continue
+            self.frames += 1
+            out.append(frame)
+        return out
+
+    def feed_raw(self, data: bytes | bytearray | memoryview) -> list[bytes]:
+        """The bytes of each frame completed by `data` whose header and CRCs pass, in order,
+        its DATA not opened (`feed` opens it and counts the frames; this counts the noise)."""
         buf = self._buf
         buf += data
-        out: list[Frame] = []
+        out: list[bytes] = []
         n = len(buf)
         pos = 0
         while pos < n:
@@ -304,24 +337,16 @@ class FrameReader:
                 continue
             if n - pos < length:
                 break  # the rest of the frame is still on its way
-            raw = memoryview(buf)[pos : pos + length]
+            raw = bytes(buf[pos : pos + length])
             if length > HEADER_LEN and crc32(raw) != 0:
-                raw.release()
                 self.crc_errors += 1
                 # Drop only the first byte: a real frame may start inside this one.
                 self._discard(1)
                 pos += 1
                 continue
-            frame, _, _ = _open(raw, self.cipher)
-            raw.release()
             pos += length
             self._in_garbage = False
-            if frame is None or not frame.readable:
-                self.undecryptable += 1
-                self.bad_frames += 1
-                continue
-            self.frames += 1
-            out.append(frame)
+            out.append(raw)
         del buf[:pos]
         return out
 
@@ -348,6 +373,8 @@ __all__ = [
     "ack_frame",
     "command_frame",
     "decode",
+    "deframe",
+    "describe_frame",
     "encode",
     "frame_length",
     "header_problem",

@@ -1,0 +1,215 @@
+"""The shipped barrier (buzz_scripts/include/barrier.bzz) beyond the basics of test_behaviors:
+bursts, robots that die or leave mid-barrier, the resume state, its traffic per robot, and
+ROSBuzz's own barrier, which must still run unmodified on fieldkit's stigmergy."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from harness import Harness
+from test_behaviors import BARRIER_PROBE, INCLUDE, SCRIPTS, StandIn, barrier_run
+
+import bvm
+from bvm import wire
+from fieldkit.sim.radio import LinkModel
+
+ROSBUZZ = Path(__file__).resolve().parent / "data" / "rosbuzz"
+
+
+def outcomes(h: Harness, ids: list[int] | None = None) -> dict[int, tuple[str, int]]:
+    """Each robot's (outcome, step it changed)."""
+    return {rid: (h.vms[rid]["OUT"], h.vms[rid]["AT"]) for rid in (ids or h.ids)}
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_barrier_passes_under_bursts(seed: int) -> None:
+    # Gilbert-Elliott losses: half of all packets lost, in bursts of 8 ticks on average.
+    ids = list(range(1, 11))
+    program = bvm.compile_source(BARRIER_PROBE, str(INCLUDE / "probe.bzz"))
+
+    def setup(rid: int, vm: bvm.VM) -> None:
+        vm["JOIN"], vm["KEY"], vm["CODE"], vm["THRESHOLD"] = 1, 4, 900, 10
+        vm["BARRIER_TIMEOUT"] = 300
+
+    h = Harness(
+        program,
+        ids,
+        positions={i: (3.0 * i, 0.0, 0.0) for i in ids},
+        link=LinkModel.bursty(0.5, 8.0),
+        seed=seed,
+        setup=setup,
+        budget_bytes=186,
+        overhead=2,
+    )
+    h.run(300)
+    assert h.errors == {}
+    assert {o for o, _ in outcomes(h).values()} == {"passed"}
+
+
+def test_a_robot_dying_before_its_news_spread_blocks_nobody_past_the_timeout() -> None:
+    # Robot 10 takes part but dies at once (before its first message): the nine others
+    # wait for it, then all time out exactly at the timeout, none later.
+    program = bvm.compile_source(BARRIER_PROBE, str(INCLUDE / "probe.bzz"))
+
+    def setup(rid: int, vm: bvm.VM) -> None:
+        vm["JOIN"], vm["KEY"], vm["CODE"], vm["THRESHOLD"] = 1, 4, 900, 10
+        vm["BARRIER_TIMEOUT"] = 60
+
+    ids = list(range(1, 11))
+    h = Harness(program, ids, link=LinkModel(drop=0.5), seed=3, setup=setup)
+    h.ids.remove(10)  # dead: it never steps, so never sends
+    h.run(61)
+    assert h.errors == {}
+    assert set(outcomes(h, list(range(1, 10))).values()) == {("timedout", 60)}
+
+
+def test_a_robot_dying_after_its_news_spread_still_counts_and_the_rest_pass() -> None:
+    # Ready is ready: robot 10 announced itself, then died. Its readiness is relayed by the
+    # others, so the nine still pass (as with the old barrier's stigmergy entries).
+    program = bvm.compile_source(BARRIER_PROBE, str(INCLUDE / "probe.bzz"))
+
+    def setup(rid: int, vm: bvm.VM) -> None:
+        vm["JOIN"], vm["KEY"], vm["CODE"], vm["THRESHOLD"] = 1, 4, 900, 11  # 11 comes late
+        vm["BARRIER_TIMEOUT"] = 200
+
+    ids = list(range(1, 12))
+    h = Harness(program, ids, link=LinkModel(drop=0.3), seed=4, setup=setup)
+    h.ids.remove(11)
+    h.run(5)  # robot 10 speaks a few times, then dies
+    h.ids.remove(10)
+    h.run(20)
+    assert {o for o, _ in outcomes(h, list(range(1, 10))).values()} == {"waiting"}
+    h.ids.append(11)  # the late robot: now everyone's set reaches 11
+    h.ids.sort()
+    h.run(100)
+    assert h.errors == {}
+    assert {o for o, _ in outcomes(h, [*range(1, 10), 11]).values()} == {"passed"}
+
+
+LEAVE_PROBE = BARRIER_PROBE.replace(
+    "function step() {\n  T = T + 1",
+    "function step() {\n  T = T + 1\n"
+    "  if (id == 6 and T == 5) { barrier_leave(B) }\n"
+    '  if (id == 6 and T == 40) { barrier_rearm(B) OUT = "waiting" }\n'
+    "  if (id == 7 and T < 20) { return }",
+)
+
+
+def test_a_robot_that_leaves_is_not_counted_until_it_comes_back() -> None:
+    # Seven robots, threshold 7. Robot 6 leaves at step 5, robot 7 only joins at step 20:
+    # without the leave the others would count 7 and pass; they must wait. Robot 6 comes
+    # back at step 40 (a new generation of its entry), and then everyone passes.
+    program = bvm.compile_source(LEAVE_PROBE, str(INCLUDE / "probe.bzz"))
+
+    def setup(rid: int, vm: bvm.VM) -> None:
+        vm["JOIN"], vm["KEY"], vm["CODE"], vm["THRESHOLD"] = 1, 4, 900, 7
+        vm["BARRIER_TIMEOUT"] = 300
+
+    h = Harness(program, range(1, 8), link=LinkModel(drop=0.2), seed=6, setup=setup)
+    h.run(39)
+    assert h.errors == {}
+    assert outcomes(h)[6][0] == "left"
+    assert {o for r, (o, _) in outcomes(h).items() if r != 6} == {"waiting"}
+    assert {h.vms[r].call("barrier_count", h.vms[r]["B"]) for r in (1, 7)} == {6}
+    h.run(60)
+    assert h.errors == {}
+    final = outcomes(h)
+    assert {o for o, _ in final.values()} == {"passed"}
+    assert min(at for r, (_, at) in final.items() if r != 6) > 40  # 6 counts itself at 40
+
+
+def test_a_timed_out_command_barrier_resumes_the_previous_state() -> None:
+    # Four robots told the swarm has five (ROBOTS): RC 900 waits in the barrier, times out
+    # after BARRIER_TIMEOUT steps and goes back to the state it came from, on every robot.
+    sim = StandIn(
+        SCRIPTS / "task_allocation.bzz", 4, drop=0.3, seed=2, ROBOTS=5, BARRIER_TIMEOUT=40
+    )
+    sim.rc[2] = 900
+    sim.run(20)
+    assert sim.states() == ["BARRIERWAIT"] * 4
+    sim.run(60)
+    assert sim.states() == ["TURNEDOFF"] * 4
+    assert {vm["BARRIER_OUTCOME"] for vm in sim.h.vms.values()} == {"timedout"}
+    # The first to time out leaves, so the others count one robot fewer when they do.
+    timed_out = [line for line in sim.lines if "timed out with" in line]
+    assert len(timed_out) == 4 and all(line.endswith("of 5 -> TURNEDOFF") for line in timed_out)
+
+
+def test_one_message_per_waiting_robot_per_step_and_it_stays_small() -> None:
+    # What makes the traffic linear: a waiting robot sends one message a step, whatever the
+    # swarm's size; nothing is relayed by flooding. 40 robots on a line, 5 in range of each.
+    ids = list(range(1, 41))
+    h = barrier_run(ids, drop=0.0, seed=1, threshold=40, steps=1)
+    sizes: list[int] = []
+    for _ in range(10):
+        before = h.radio.sent
+        h.step()
+        assert h.radio.sent - before <= len(ids)
+    for vm in h.vms.values():
+        for payload in vm.drain_outbox():
+            msg = wire.decode(payload)
+            assert isinstance(msg, wire.Broadcast)
+            sizes.append(len(payload))
+    assert max(sizes, default=0) <= 60
+
+
+def test_barrier_messages_of_another_code_are_ignored() -> None:
+    # Two commands raced for one key: robots count only the robots holding their own code.
+    program = bvm.compile_source(BARRIER_PROBE, str(INCLUDE / "probe.bzz"))
+
+    def setup(rid: int, vm: bvm.VM) -> None:
+        vm["JOIN"], vm["KEY"], vm["THRESHOLD"] = 1, 4, 4
+        vm["CODE"] = 900 if rid <= 3 else 901
+        vm["BARRIER_TIMEOUT"] = 50
+
+    h = Harness(program, range(1, 7), link=LinkModel(), seed=1, setup=setup)
+    h.run(51)
+    assert {o for o, _ in outcomes(h).values()} == {"timedout"}
+
+
+def rosbuzz_probe(threshold: int) -> bvm.Program:
+    """A ROSBuzz-style main script around ROSBuzz's barrier (unmodified)."""
+    src = f"""
+include "barrier.bzz"
+function init() {{
+  statef = function() {{
+  }}
+  BVMSTATE = "TURNEDOFF"
+  barrier_set({threshold}, "GO", "BACK", 900)
+  barrier_ready(900)
+}}
+function step() {{
+  statef()
+}}
+"""
+    return bvm.compile_source(src, str(ROSBUZZ / "probe.bzz"))
+
+
+def test_rosbuzz_barrier_still_runs_unmodified() -> None:
+    # ROSBuzz's act/barrier.bzz uses stigmergy 80 (robot id -> code, "n", "d"): fieldkit's
+    # own barrier no longer does, and ROSBuzz's still passes on fieldkit's stigmergy.
+    ids = list(range(1, 7))
+    h = Harness(
+        rosbuzz_probe(6),
+        ids,
+        positions={i: (3.0 * i, 0.0, 0.0) for i in ids},
+        link=LinkModel(drop=0.3),
+        seed=2,
+        budget_bytes=186,
+        overhead=2,
+    )
+    h.run(100)
+    assert h.errors == {}
+    assert {vm["BVMSTATE"] for vm in h.vms.values()} == {"GO"}
+
+
+def test_rosbuzz_barrier_still_times_out_unmodified() -> None:
+    ids = list(range(1, 5))
+    program = rosbuzz_probe(5)
+    h = Harness(program, ids, link=LinkModel(), seed=1)
+    for vm in h.vms.values():
+        vm["BARRIER_TIMEOUT"] = 30
+    h.run(40)
+    assert h.errors == {}
+    assert {vm["BVMSTATE"] for vm in h.vms.values()} == {"BACK"}
