@@ -94,6 +94,8 @@ class ReopeningSerial:
         #: Told once per outage, with the reason; then when it is back, with seconds down.
         self.on_lost: Callable[[str], None] | None = None
         self.on_back: Callable[[float], None] | None = None
+        #: Told of each failure of a port that is not reopened (a URL's), with the reason.
+        self.on_error: Callable[[str], None] | None = None
         self.port: serial.SerialBase | None = self._open()
 
     def _open(self) -> serial.SerialBase:
@@ -167,7 +169,10 @@ class ReopeningSerial:
         """A read, write or select on the port failed: take the device down."""
         self.errors += 1
         if self.url:
-            return  # not a device that comes back: the caller keeps counting
+            # Not a device that comes back: the caller counts, the port stays as it is.
+            if self.on_error is not None:
+                self.on_error(port_reason(what, e))
+            return
         self.lost(port_reason(what, e))
 
     def lost(self, reason: str) -> None:

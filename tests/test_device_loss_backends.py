@@ -1,0 +1,385 @@
+"""A serial device that vanishes and comes back (issue 18) for the non-MAVLink backends: the
+M100's DJI link and the Husky's two ports, on `fieldkit.vehicle.serial_port.ReopeningSerial`.
+
+As in tests/test_device_loss.py (the MAVLink link's), a device is a udev-like symlink in a
+temporary folder to a real pty; `unplug()` closes the pty and removes the symlink, `plug()`
+makes a new pty (another /dev/pts/N) and points the symlink at it. The machine on the other
+end is the simulator's (`SimM100Vehicle`, `SimHuskyPorts`), moved to the new pty when the
+cable goes back in (`attach`: the same machine, still flying or driving). Everything ticks
+on a simulated clock; waits are on bytes, with a wall-clock deadline as a hang guard only.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import re
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+import serial
+from rigs.dji import DJI_HOME
+
+import bvm
+from fieldkit.node.autopilot_port import vehicle_port
+from fieldkit.node.node import Node
+from fieldkit.robot.profiles import load_profile
+from fieldkit.robot.rc import RcCommand
+from fieldkit.robot.safety import HEARTBEAT_LOST
+from fieldkit.vehicle.dji import messages as M
+from fieldkit.vehicle.dji.link import DjiLink
+from fieldkit.vehicle.pty import PtyPair, open_pty
+from fieldkit.vehicle.serial_port import ReopeningSerial, port_reason
+from fieldkit.vehicle.sim.dji import TEST_APP_ID, TEST_APP_KEY
+from fieldkit.vehicle.sim.dji_vehicle import SimM100Vehicle
+
+#: Hang guard for bytes crossing a pty (real seconds); a healthy exchange takes milliseconds.
+SYNC_TIMEOUT_S = 10.0
+
+
+class Socket:
+    """A device node in a folder: a symlink to the pty that plays the device, as udev's."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = str(path)
+        self.pty: PtyPair | None = None
+
+    def plug(self) -> PtyPair:
+        """A new pty, the symlink pointed at it (atomically, as udev does)."""
+        assert self.pty is None
+        self.pty = open_pty()
+        staged = self.path + ".new"
+        os.symlink(self.pty.slave_path, staged)
+        os.replace(staged, self.path)
+        return self.pty
+
+    def unplug(self) -> None:
+        """Pull the cable: the device closes under its reader and its node file goes."""
+        assert self.pty is not None
+        self.pty.close()
+        os.unlink(self.path)
+        self.pty = None
+
+    def close(self) -> None:
+        """Close whatever pty is plugged."""
+        if self.pty is not None:
+            self.pty.close()
+            self.pty = None
+
+
+def hang_guard(what: str) -> Callable[[], None]:
+    """A check to call in a wait loop: fails after SYNC_TIMEOUT_S real seconds."""
+    deadline = time.monotonic() + SYNC_TIMEOUT_S
+
+    def check() -> None:
+        assert time.monotonic() < deadline, f"{what}: bytes not delivered"
+
+    return check
+
+
+# ---------------------------------------------------------------- the port alone
+
+
+def test_port_reasons_are_short() -> None:
+    eio = OSError(errno.EIO, "Input/output error")
+    assert port_reason("read failed", eio) == "read failed: Input/output error"
+    try:
+        raise serial.SerialException(f"read failed: {eio}") from eio
+    except serial.SerialException as wrapped:
+        assert port_reason("read failed", wrapped) == "read failed: Input/output error"
+    eof = serial.SerialException(
+        "device reports readiness to read but returned no data (device disconnected or "
+        "multiple access on port?)"
+    )
+    assert port_reason("read failed", eof) == "read failed: end of file, device disconnected"
+
+
+def test_a_port_is_lost_once_dropped_while_down_and_reopened_at_the_pace(tmp_path: Path) -> None:
+    socket = Socket(tmp_path / "dev")
+    pty = socket.plug()
+    now = [0.0]
+    port = ReopeningSerial(socket.path, 115200, clock=lambda: now[0])
+    told: list[str] = []
+    port.on_lost = lambda reason: told.append(f"lost ({reason})")
+    port.on_back = lambda down: told.append(f"back after {down:g} s")
+    try:
+        os.write(pty.master, b"hello")
+        check = hang_guard("device -> port")
+        got = b""
+        while got != b"hello":
+            check()
+            got += port.read(64)
+        assert port.write_some(b"ping") == 4
+        socket.unplug()
+        now[0] = 10.0
+        assert port.read(64) == b"" and port.down and port.fileno() is None
+        assert port.write_some(b"12345") == 0 and port.bytes_dropped == 5
+        assert not port.write_all(b"123") and port.bytes_dropped == 8
+        assert port.read(64) == b""  # down: no second loss
+        # EIO, or end of file where the tty had no error to give: either way a short reason.
+        (lost,) = told
+        assert re.fullmatch(r"lost \(read failed: (Input/output error|end of file, .+)\)", lost)
+        assert port.reopen.down_since == 10.0 and port.reopen.outages == 1
+        pty = socket.plug()
+        now[0] = 10.5
+        assert not port.try_reopen()  # not due: no open() at all
+        assert port.reopen.attempts == 0
+        now[0] = 11.2
+        assert port.try_reopen() and not port.down
+        assert told[1:] == ["back after 1.2 s"] and port.reopen.down_s == pytest.approx(1.2)
+        os.write(pty.master, b"again")
+        check = hang_guard("new device -> port")
+        got = b""
+        while got != b"again":
+            check()
+            got += port.read(64)
+        # A write that fails takes it down as well, with its own reason.
+        socket.unplug()
+        now[0] = 20.0
+        assert port.write_some(b"x") == 0 and port.down
+        assert told[2:] == ["lost (write failed: Input/output error)"]
+        now[0] = 25.0
+        assert not port.try_reopen()  # still gone: one failed open, the next a second later
+        assert port.reopen.attempts == 1 and not port.reopen.due(25.5)
+        port.close()
+        socket.plug()
+        assert not port.try_reopen() and not port.down  # closed for good
+    finally:
+        port.close()
+        socket.close()
+
+
+# ---------------------------------------------------------------- the M100
+
+FLY = """
+function init() { BVMSTATE = "TURNEDOFF" }
+function step() {
+  if (flight.rc_cmd == 22 and BVMSTATE == "TURNEDOFF") BVMSTATE = "TAKEOFF"
+  if (BVMSTATE == "TAKEOFF") {
+    uav_takeoff(TARGET_ALTITUDE)
+    if (pose.position.altitude > TARGET_ALTITUDE * 0.9) {
+      BVMSTATE = "GO"
+      goto_abs(10.0, 0.0, 0.0, 0.0)
+    }
+  }
+}
+"""
+
+
+class M100Cable:
+    """/dev/m100 in a temporary folder: the DJI link on it, a simulated M100 at the other end.
+
+    Stepped at DJI's 50 Hz on a simulated clock; the node (if any) ticks every fifth step,
+    at its profile's 10 Hz. While unplugged the flight controller is not stepped.
+    """
+
+    dt = 0.02
+
+    def __init__(self, folder: Path) -> None:
+        self.profile = load_profile("m100")
+        self.socket = Socket(folder / "m100")
+        self.now = 0.0
+        self.steps = 0
+        pty = self.socket.plug()
+        self.sim: SimM100Vehicle | None = SimM100Vehicle(
+            self.profile, pty.master, home=DJI_HOME, gps_fix_delay_s=0.0
+        )
+        self.away: SimM100Vehicle | None = None
+        self.link = DjiLink(
+            self.socket.path,
+            app_id=TEST_APP_ID,
+            app_key=TEST_APP_KEY,
+            profile=self.profile,
+            clock=self.clock,
+            release_on_close=False,
+        )
+        self._mark()
+
+    @property
+    def path(self) -> str:
+        """The device's path (the symlink)."""
+        return self.socket.path
+
+    def clock(self) -> float:
+        """The simulated time, seconds."""
+        return self.now
+
+    def _mark(self) -> None:
+        """Count each end's bytes from here (a new line)."""
+        sim = self.sim
+        assert sim is not None
+        self._rx = (self.link.core.bytes_received, sim.bytes_sent)
+        self._tx = (self.link.bytes_written, sim.bytes_received)
+
+    def unplug(self) -> None:
+        """Pull the cable."""
+        self.socket.unplug()
+        self.away, self.sim = self.sim, None
+
+    def plug(self) -> SimM100Vehicle:
+        """Plug it back: a new pty, the same flight controller (still flying) on it."""
+        sim = self.away
+        assert sim is not None
+        pty = self.socket.plug()
+        sim.attach(pty.master)
+        self.sim, self.away = sim, None
+        return sim
+
+    def tick(self, node: Node | None = None) -> None:
+        """A step of the FC, the node's tick when due, a poll of the link, bytes delivered."""
+        if node is not None and self.steps % 5 == 0:
+            self._watch(node.tick)
+        self.steps += 1
+        sim = self.sim
+        if sim is not None:
+            sim.step(self.dt)
+        self.now += self.dt
+        self._watch(self.link.poll)
+        if sim is None or self.link.link_down:
+            return
+        link = self.link
+        check = hang_guard("FC <-> link")
+        while link.core.bytes_received - self._rx[0] < sim.bytes_sent - self._rx[1]:
+            check()
+            self._watch(lambda: link.poll(0.1))
+        while sim.bytes_received - self._tx[1] < link.bytes_written - self._tx[0]:
+            check()
+            sim.service(0.1)
+
+    def _watch(self, poll: Callable[[], object]) -> None:
+        """Run `poll`; if the link came back in it, count the new line's bytes from there."""
+        down = self.link.link_down
+        poll()
+        if down and not self.link.link_down and self.sim is not None:
+            self._mark()
+
+    def run_until(self, cond: Callable[[], bool], seconds: float, node: Node | None = None) -> bool:
+        """Tick until `cond()` holds (True) or `seconds` of simulated time pass (False)."""
+        for _ in range(round(seconds / self.dt)):
+            if cond():
+                return True
+            self.tick(node)
+        return cond()
+
+    def close(self) -> None:
+        """Close the link, the FC's line and the pty."""
+        self.link.close()
+        for sim in (self.sim, self.away):
+            if sim is not None:
+                sim.close()
+        self.socket.close()
+
+
+@pytest.fixture
+def m100(tmp_path: Path) -> Iterator[M100Cable]:
+    """The M100 behind a symlink, activated and holding control authority, a position known."""
+    c = M100Cable(tmp_path)
+    try:
+        c.link.wait_connected(10.0, idle=c.tick, poll_interval=0.0)
+        c.link.wait_position(5.0, idle=c.tick, poll_interval=0.0)
+        yield c
+    finally:
+        c.close()
+
+
+def node_on(link: object, profile_name: str, src: str, clock: Callable[[], float]) -> Node:
+    """A node flying `src` on `link` (home where the vehicle is), robot 3, RC 22 at 0.5 s."""
+    t = link.telemetry  # type: ignore[attr-defined]
+    assert t.lat is not None and t.lon is not None
+    home = (t.lat, t.lon, 0.0)
+    return Node(
+        load_profile(profile_name),
+        bvm.compile_source(src),
+        3,
+        vehicle_port(link, home),  # type: ignore[arg-type]
+        None,
+        home=home,
+        commands=[RcCommand(0.5, 3, 22)],
+        clock=clock,
+        out=lambda line: None,
+    )
+
+
+def link_lines(caplog: pytest.LogCaptureFixture, *words: str) -> list[tuple[str, str]]:
+    """(level, text) of the node's log lines holding any of `words`."""
+    return [
+        (r.levelname, r.getMessage())
+        for r in caplog.records
+        if r.name == "fieldkit.node" and any(w in r.getMessage() for w in words)
+    ]
+
+
+def fly_and_pull(m100: M100Cable, caplog: pytest.LogCaptureFixture) -> Node:
+    """The M100 flying its script, its cable pulled for five seconds: the node keeps ticking,
+    its heartbeat-loss failsafe fires (land), one warning says the device is lost."""
+    caplog.set_level(logging.INFO, logger="fieldkit")
+    link = m100.link
+    node = node_on(link, "m100", FLY, m100.clock)
+    assert m100.run_until(lambda: node.runtime.state == "GO", 60.0, node)
+    ticks = node.runtime.ticks
+    m100.unplug()
+    m100.run_until(lambda: False, 5.0, node)
+    assert node.runtime.ticks == ticks + 50  # every tick ran
+    supervisor = node.runtime.supervisor
+    assert supervisor.failsafe == HEARTBEAT_LOST and supervisor.action == "land"
+    assert link.link_down and link.fileno() is None and link.bytes_dropped > 0
+    assert link.reopen.attempts in (3, 4)  # one open() a second, not one a poll
+    (lost,) = link_lines(caplog, " lost (")
+    assert lost[0] == "WARNING"
+    path = re.escape(m100.path)
+    assert re.fullmatch(rf"autopilot: {path} lost \(read failed: .+\); reopening", lost[1])
+    status = node.status_line()
+    assert re.search(r", autopilot link down [\d.]+ s, ", status), status
+    return node
+
+
+def test_an_m100_whose_cable_comes_back_is_activated_again_and_lands(
+    m100: M100Cable, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The same flight controller, still flying, on another tty: the link reopens the path,
+    the session starts over (activation, the broadcast rate, control authority), and the
+    landing the failsafe could not send goes out."""
+    node = fly_and_pull(m100, caplog)
+    link = m100.link
+    sim = m100.away
+    assert sim is not None
+    asked = sim.received.copy()
+    m100.plug()
+    assert m100.run_until(lambda: not link.link_down, 1.5, node)
+    assert m100.run_until(lambda: link.core.connected, 3.0, node)
+    (back,) = link_lines(caplog, " back after ")
+    assert back[0] == "INFO"
+    assert re.fullmatch(rf"autopilot: {re.escape(m100.path)} back after [\d.]+ s", back[1])
+    for command in (M.CMD_GET_VERSION, M.CMD_ACTIVATE, M.CMD_SET_BROADCAST, M.CMD_CONTROL):
+        assert sim.received[command] > asked[command], command
+    assert link_lines(caplog, "activated: app id")[-1][1].startswith("autopilot: activated")
+    assert m100.run_until(lambda: sim.task == "landing", 5.0, node)
+    assert m100.run_until(lambda: sim.vehicle.z == 0.0, 30.0, node)  # landed
+    assert node.runtime.supervisor.failsafe == HEARTBEAT_LOST  # a land is never undone
+    summary = node.summary()
+    assert summary["autopilot_outages"] == 1 and summary["autopilot_down_s"] > 1.0
+    assert summary["autopilot_bytes_dropped"] == link.bytes_dropped > 0
+    assert summary["errors"] == [] and link.bad_frames == 0
+
+
+def test_an_m100_the_pilot_took_meanwhile_is_left_to_the_pilot(
+    m100: M100Cable, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The pilot flipped the mode switch out of F while the cable was out: the link reopens
+    and activates again, but asks for no control authority, and the landing is not sent."""
+    node = fly_and_pull(m100, caplog)
+    link = m100.link
+    sim = m100.away
+    assert sim is not None
+    sim.pilot_switch("A")
+    asked = sim.received.copy()
+    m100.plug()
+    assert m100.run_until(lambda: link.core.activated, 3.0, node)
+    m100.run_until(lambda: False, 3.0, node)
+    assert link.pilot_override and not sim.authority
+    assert sim.received[M.CMD_ACTIVATE] > asked[M.CMD_ACTIVATE]
+    assert sim.received[M.CMD_CONTROL] == asked[M.CMD_CONTROL]  # nothing to take it back
+    assert sim.received[M.CMD_TASK] == asked[M.CMD_TASK] and sim.task is None
