@@ -21,20 +21,24 @@ from pathlib import Path
 
 import pytest
 import serial
+from rigs import RIG_HOME
 from rigs.dji import DJI_HOME
 
 import bvm
 from fieldkit.node.autopilot_port import vehicle_port
 from fieldkit.node.node import Node
+from fieldkit.robot import geo
 from fieldkit.robot.profiles import load_profile
 from fieldkit.robot.rc import RcCommand
 from fieldkit.robot.safety import HEARTBEAT_LOST
+from fieldkit.vehicle.clearpath.link import Husky
 from fieldkit.vehicle.dji import messages as M
 from fieldkit.vehicle.dji.link import DjiLink
 from fieldkit.vehicle.pty import PtyPair, open_pty
 from fieldkit.vehicle.serial_port import ReopeningSerial, port_reason
 from fieldkit.vehicle.sim.dji import TEST_APP_ID, TEST_APP_KEY
 from fieldkit.vehicle.sim.dji_vehicle import SimM100Vehicle
+from fieldkit.vehicle.sim.husky_pty import SimHuskyPorts
 
 #: Hang guard for bytes crossing a pty (real seconds); a healthy exchange takes milliseconds.
 SYNC_TIMEOUT_S = 10.0
@@ -383,3 +387,202 @@ def test_an_m100_the_pilot_took_meanwhile_is_left_to_the_pilot(
     assert sim.received[M.CMD_ACTIVATE] > asked[M.CMD_ACTIVATE]
     assert sim.received[M.CMD_CONTROL] == asked[M.CMD_CONTROL]  # nothing to take it back
     assert sim.received[M.CMD_TASK] == asked[M.CMD_TASK] and sim.task is None
+
+
+# ---------------------------------------------------------------- the Husky's two ports
+
+DRIVE = """
+function init() { n = 0 }
+function step() {
+  n = n + 1
+  if (n == 2) arm()
+  if (n > 5) goto_abs(40.0 - pose.position.x, 0.0 - pose.position.y, 0.0, 0.0)
+}
+"""
+
+
+class HuskyCable:
+    """/dev/husky and /dev/gps in a temporary folder: the Husky link on them, a simulated
+    Husky at the other ends, ticking at the node's 10 Hz on a simulated clock.
+
+    The base keeps running whichever cable is out: its end of a pulled cable dangles (a pty
+    nobody reads) until it goes back in.
+    """
+
+    dt = 0.1
+
+    def __init__(self, folder: Path) -> None:
+        self.profile = load_profile("husky")
+        self.mcu = Socket(folder / "husky")
+        self.gps = Socket(folder / "gps")
+        self.now = 0.0
+        mcu, gps = self.mcu.plug(), self.gps.plug()
+        self.sim = SimHuskyPorts(self.profile, mcu.master, gps.master, home=RIG_HOME)
+        self.link = Husky(self.mcu.path, self.gps.path, profile=self.profile, clock=self.clock)
+        self.dangling: dict[str, PtyPair] = {}
+        self._mark()
+
+    def clock(self) -> float:
+        """The simulated time, seconds."""
+        return self.now
+
+    def _mark(self) -> None:
+        """Count each line's bytes from here (a new line)."""
+        link, sim = self.link, self.sim
+        self._mcu_rx = (link.bytes_received, sim.mcu.bytes_sent)
+        self._mcu_tx = (link.bytes_sent, sim.mcu.bytes_received)
+        self._gps_rx = (link.gps.bytes_received, sim.gps.bytes_sent)
+
+    def unplug(self, which: str) -> None:
+        """Pull the MCU's ("mcu") or the GPS's ("gps") cable."""
+        socket = self.mcu if which == "mcu" else self.gps
+        socket.unplug()
+        void = self.dangling[which] = open_pty()
+        self.sim.attach(**{which: void.master})
+
+    def plug(self, which: str) -> None:
+        """Plug it back: a new pty behind the same name, the base's end on it."""
+        socket = self.mcu if which == "mcu" else self.gps
+        pty = socket.plug()
+        self.sim.attach(**{which: pty.master})
+        self.dangling.pop(which).close()
+
+    def tick(self, node: Node | None = None) -> None:
+        """The node's tick (or a poll of the link), a step of the base, bytes delivered."""
+        link, sim = self.link, self.sim
+        down = (link.reopen.down, link.gps_reopen.down)
+        if node is not None:
+            node.tick()
+        else:
+            link.poll()
+        sim.step(self.dt)
+        self.now += self.dt
+        link.poll()
+        if down != (link.reopen.down, link.gps_reopen.down):
+            self._mark()  # a line came back (or went): count it afresh
+        check = hang_guard("base <-> link")
+        while not link.reopen.down:
+            check()
+            if link.bytes_received - self._mcu_rx[0] >= sim.mcu.bytes_sent - self._mcu_rx[1]:
+                break
+            link.poll(0.1)
+        while not link.gps_reopen.down:
+            check()
+            if link.gps.bytes_received - self._gps_rx[0] >= sim.gps.bytes_sent - self._gps_rx[1]:
+                break
+            link.poll(0.1)
+        while not link.reopen.down:
+            check()
+            if sim.mcu.bytes_received - self._mcu_tx[1] >= link.bytes_sent - self._mcu_tx[0]:
+                break
+            sim.service(0.1)
+
+    def run_until(self, cond: Callable[[], bool], seconds: float, node: Node | None = None) -> bool:
+        """Tick until `cond()` holds (True) or `seconds` of simulated time pass (False)."""
+        for _ in range(round(seconds / self.dt)):
+            if cond():
+                return True
+            self.tick(node)
+        return cond()
+
+    def close(self) -> None:
+        """Close the link, the base's lines and every pty."""
+        self.link.close()
+        self.sim.close()
+        for socket in (self.mcu, self.gps):
+            socket.close()
+        for pty in self.dangling.values():
+            pty.close()
+
+
+@pytest.fixture
+def husky(tmp_path: Path) -> Iterator[HuskyCable]:
+    """The Husky behind two symlinks, its MCU answering and a GPS fix."""
+    c = HuskyCable(tmp_path)
+    try:
+        c.link.wait_heartbeat(10.0, idle=c.tick, poll_interval=0.0)
+        c.link.wait_gps_fix(10.0, idle=c.tick, poll_interval=0.0)
+        yield c
+    finally:
+        c.close()
+
+
+def test_a_husky_whose_mcu_cable_comes_back_stops_then_drives_on(
+    husky: HuskyCable, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The MCU's cable out for five seconds: nothing the node sends reaches the base, whose
+    MCU watchdog stops the wheels (the warning says so); the heartbeat-loss failsafe (stop)
+    fires; once the cable is back and the MCU healthy, the script gets its robot back."""
+    caplog.set_level(logging.INFO, logger="fieldkit")
+    link, sim = husky.link, husky.sim
+    node = node_on(link, "husky", DRIVE, husky.clock)
+    supervisor = node.runtime.supervisor
+    assert husky.run_until(lambda: sim.drive.moving, 10.0, node)
+    ticks = node.runtime.ticks
+    husky.unplug("mcu")
+    husky.run_until(lambda: False, 5.0, node)
+    assert node.runtime.ticks == ticks + 50  # every tick ran
+    assert not sim.drive.moving and sim.watchdog_trips == 1  # the base's own watchdog
+    assert supervisor.failsafe == HEARTBEAT_LOST and supervisor.action == "stop"
+    assert link.link_down and link.bytes_dropped > 0 and link.reopen.attempts in (3, 4)
+    assert not link.gps_reopen.down and link.gps.has_fix  # the GPS is another cable
+    (lost,) = link_lines(caplog, " lost (")
+    path = re.escape(husky.mcu.path)
+    assert lost[0] == "WARNING"
+    assert re.fullmatch(
+        rf"husky: MCU port {path} lost \(read failed: .+\); reopening: nothing reaches the "
+        r"base meanwhile, its MCU's watchdog stops the wheels",
+        lost[1],
+    )
+    assert ", autopilot link down " in node.status_line()
+    husky.plug("mcu")
+    assert husky.run_until(lambda: not link.link_down, 1.5, node)
+    assert husky.run_until(lambda: supervisor.failsafe is None, 10.0, node)
+    (back,) = link_lines(caplog, " back after ")
+    assert back[0] == "INFO"
+    assert re.fullmatch(rf"husky: MCU port {path} back after [\d.]+ s", back[1])
+    assert husky.run_until(lambda: sim.drive.moving, 5.0, node)  # driving on to its target
+    summary = node.summary()
+    assert summary["autopilot_outages"] == 1 and summary["autopilot_down_s"] > 1.0
+    assert summary["autopilot_bytes_dropped"] == link.bytes_dropped
+    assert summary["errors"] == []
+
+
+def test_a_husky_whose_gps_cable_comes_back_loses_its_fix_then_regains_it(
+    husky: HuskyCable,
+) -> None:
+    """The GPS's cable out: the fix is lost at once (not after the receiver's silence
+    timeout) and the base stops driving; the MCU, on its own cable, answers throughout.
+    Back in: the port reopens, the fix returns, and the base drives on."""
+    link, sim = husky.link, husky.sim
+    port = vehicle_port(link, (*RIG_HOME, 0.0))
+    husky.link.wait_command(link.arm(), 5.0, idle=husky.tick, poll_interval=0.0)
+    to = geo.offset_gps(RIG_HOME[0], RIG_HOME[1], 40.0, 0.0)
+    link.goto(*to, 0.0)
+    assert husky.run_until(lambda: sim.drive.moving, 5.0)
+    link.drain_events()
+    husky.unplug("gps")
+    husky.tick()
+    texts = [(e.kind, e.text) for e in link.drain_events()]
+    assert texts[0][0] == "link" and re.fullmatch(
+        rf"GPS port {re.escape(husky.gps.path)} lost \(read failed: .+\); reopening: no fix "
+        r"meanwhile, the base stops",
+        texts[0][1],
+    )
+    assert texts[1][0] == "gps"
+    assert texts[1][1].startswith(f"{husky.gps.path}: fix lost (port lost: read failed: ")
+    assert not link.gps.has_fix and link.telemetry.gps_fix_type <= 1
+    assert link.wheel_command == (0.0, 0.0)
+    assert husky.run_until(lambda: not sim.drive.moving, 3.0)
+    husky.run_until(lambda: False, 3.0)
+    assert not link.heartbeat_lost  # the MCU answered all along
+    health = port.link_health(husky.now)  # type: ignore[attr-defined]
+    assert health.down_for_s is not None and health.down_for_s > 2.9 and health.outages == 1
+    husky.plug("gps")
+    assert husky.run_until(lambda: link.gps.has_fix, 3.0)
+    texts = [e.text for e in link.drain_events() if e.kind in ("reopened", "gps")]
+    assert re.fullmatch(rf"GPS port {re.escape(husky.gps.path)} back after [\d.]+ s", texts[0])
+    assert re.search(r"fix \(3D", texts[1]), texts
+    assert husky.run_until(lambda: sim.drive.moving, 3.0)  # on to its target
+    health = port.link_health(husky.now)  # type: ignore[attr-defined]
+    assert health.down_for_s is None and health.outages == 1 and health.down_s > 3.0
