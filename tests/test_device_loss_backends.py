@@ -23,6 +23,7 @@ import pytest
 import serial
 from rigs import RIG_HOME
 from rigs.dji import DJI_HOME
+from rigs.flights import FLY_NORTH
 
 import bvm
 from fieldkit.node.autopilot_port import vehicle_port
@@ -82,6 +83,29 @@ def hang_guard(what: str) -> Callable[[], None]:
         assert time.monotonic() < deadline, f"{what}: bytes not delivered"
 
     return check
+
+
+class Stepped:
+    """A machine and its link ticking in lockstep on a simulated clock."""
+
+    dt: float
+    now: float
+
+    def clock(self) -> float:
+        """The simulated time, seconds."""
+        return self.now
+
+    def tick(self, node: Node | None = None) -> None:
+        """One step of the machine, the node (if any) and the link."""
+        raise NotImplementedError
+
+    def run_until(self, cond: Callable[[], bool], seconds: float, node: Node | None = None) -> bool:
+        """Tick until `cond()` holds (True) or `seconds` of simulated time pass (False)."""
+        for _ in range(round(seconds / self.dt)):
+            if cond():
+                return True
+            self.tick(node)
+        return cond()
 
 
 # ---------------------------------------------------------------- the port alone
@@ -158,22 +182,11 @@ def test_a_port_is_lost_once_dropped_while_down_and_reopened_at_the_pace(tmp_pat
 
 # ---------------------------------------------------------------- the M100
 
-FLY = """
-function init() { BVMSTATE = "TURNEDOFF" }
-function step() {
-  if (flight.rc_cmd == 22 and BVMSTATE == "TURNEDOFF") BVMSTATE = "TAKEOFF"
-  if (BVMSTATE == "TAKEOFF") {
-    uav_takeoff(TARGET_ALTITUDE)
-    if (pose.position.altitude > TARGET_ALTITUDE * 0.9) {
-      BVMSTATE = "GO"
-      goto_abs(10.0, 0.0, 0.0, 0.0)
-    }
-  }
-}
-"""
+#: Take off on RC code 22, then 10 m north (the M100 end-to-end test's flight, unbroken).
+FLY = FLY_NORTH.replace("BROKEN == 1", "0 == 1")
 
 
-class M100Cable:
+class M100Cable(Stepped):
     """/dev/m100 in a temporary folder: the DJI link on it, a simulated M100 at the other end.
 
     Stepped at DJI's 50 Hz on a simulated clock; the node (if any) ticks every fifth step,
@@ -206,10 +219,6 @@ class M100Cable:
     def path(self) -> str:
         """The device's path (the symlink)."""
         return self.socket.path
-
-    def clock(self) -> float:
-        """The simulated time, seconds."""
-        return self.now
 
     def _mark(self) -> None:
         """Count each end's bytes from here (a new line)."""
@@ -259,14 +268,6 @@ class M100Cable:
         poll()
         if down and not self.link.link_down and self.sim is not None:
             self._mark()
-
-    def run_until(self, cond: Callable[[], bool], seconds: float, node: Node | None = None) -> bool:
-        """Tick until `cond()` holds (True) or `seconds` of simulated time pass (False)."""
-        for _ in range(round(seconds / self.dt)):
-            if cond():
-                return True
-            self.tick(node)
-        return cond()
 
     def close(self) -> None:
         """Close the link, the FC's line and the pty."""
@@ -401,7 +402,7 @@ function step() {
 """
 
 
-class HuskyCable:
+class HuskyCable(Stepped):
     """/dev/husky and /dev/gps in a temporary folder: the Husky link on them, a simulated
     Husky at the other ends, ticking at the node's 10 Hz on a simulated clock.
 
@@ -421,10 +422,6 @@ class HuskyCable:
         self.link = Husky(self.mcu.path, self.gps.path, profile=self.profile, clock=self.clock)
         self.dangling: dict[str, PtyPair] = {}
         self._mark()
-
-    def clock(self) -> float:
-        """The simulated time, seconds."""
-        return self.now
 
     def _mark(self) -> None:
         """Count each line's bytes from here (a new line)."""
@@ -476,14 +473,6 @@ class HuskyCable:
             if sim.mcu.bytes_received - self._mcu_tx[1] >= link.bytes_sent - self._mcu_tx[0]:
                 break
             sim.service(0.1)
-
-    def run_until(self, cond: Callable[[], bool], seconds: float, node: Node | None = None) -> bool:
-        """Tick until `cond()` holds (True) or `seconds` of simulated time pass (False)."""
-        for _ in range(round(seconds / self.dt)):
-            if cond():
-                return True
-            self.tick(node)
-        return cond()
 
     def close(self) -> None:
         """Close the link, the base's lines and every pty."""
