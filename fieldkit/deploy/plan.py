@@ -311,20 +311,15 @@ def _option(rule_name: str) -> str:
 def _dji_app(profile: Profile, options: Options) -> File | None:
     """An M100's app key file, checked and ready to install 0600 for the fieldkit user;
     None for other flavours. Its bytes are never put in a message."""
-    given = [
-        name
-        for name, value in (
-            ("--dji-app-id", options.dji_app_id),
-            ("--dji-app-key-file", options.dji_app_key_file),
-        )
-        if value is not None
-    ]
+    values = {"--dji-app-id": options.dji_app_id, "--dji-app-key-file": options.dji_app_key_file}
+    given = [name for name, value in values.items() if value is not None]
     flavour = profile.autopilot.flavour
     if flavour != "dji":
         if given:
+            said = " and ".join(f"{name} {values[name]}" for name in given)
             raise DeployError(
-                f"{' and '.join(given)}: for a DJI M100 (flavour dji); the {profile.name} "
-                f"profile's autopilot is {flavour}\nhint: leave {' and '.join(given)} out"
+                f"{said}: for a DJI M100 (flavour dji); the {profile.name} profile's autopilot "
+                f"is {flavour}\nhint: leave {' and '.join(given)} out"
             )
         return None
     missing = [n for n in ("--dji-app-id", "--dji-app-key-file") if n not in given]

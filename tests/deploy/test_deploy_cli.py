@@ -571,7 +571,8 @@ BROKEN = "function init() {}\nfunction step() {\n  x = (1 +\n}\n"
          "developer's app: give --dji-app-key-file"),  # fmt: skip
         (["--profile", "m100", "--dji-app-key-file", "{d}/good.key"], "give --dji-app-id"),
         (["--profile", "solo", "--dji-app-id", "7", "--dji-app-key-file", "{d}/good.key"],
-         "--dji-app-id and --dji-app-key-file: for a DJI M100 (flavour dji); the solo"),
+         "--dji-app-id 7 and --dji-app-key-file {d}/good.key: for a DJI M100 (flavour dji); "
+         "the solo profile's autopilot is ardupilot"),
         (["--profile", "m100", "--dji-app-id", "0", "--dji-app-key-file", "{d}/good.key"],
          "--dji-app-id must be 1..4294967295, got 0"),
         (["--profile", "m100", "--dji-app-id", "7", "--dji-app-key-file", "{d}/short.key"],
@@ -603,7 +604,7 @@ def test_every_error_writes_nothing(tmp_path: Path, args: list[str], text: str) 
     result = deploy(*filled, "--root", root)
     assert result.exit_code == 1, result.output
     lines = errors(result.stderr)
-    assert len(lines) == 1 and text in lines[0], result.stderr
+    assert len(lines) == 1 and text.format(d=tmp_path) in lines[0], result.stderr
     assert "Traceback" not in result.output
     assert TEST_APP_KEY[1:40] not in result.output
     assert listing(root) == before
