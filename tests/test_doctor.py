@@ -27,7 +27,7 @@ from typing import Any
 import pytest
 from digi.xbee.packets.common import ATCommPacket
 from pymavlink.dialects.v20 import common as mavlink2
-from rigs import pty_vehicle
+from rigs import pty_husky, pty_vehicle
 from typer.testing import CliRunner
 
 import bvm
@@ -56,6 +56,8 @@ from fieldkit.update.release import Release
 from fieldkit.update.store import VersionStore
 from fieldkit.vehicle.mavlink import new_codec
 from fieldkit.vehicle.pty import open_pty
+from fieldkit.vehicle.sim.dji import TEST_APP_ID, TEST_APP_KEY
+from fieldkit.vehicle.sim.dji_vehicle import SimM100Vehicle
 
 runner = CliRunner()
 
@@ -153,13 +155,14 @@ def robot_keys(tmp_path: Path) -> Path:
     return keys
 
 
-def write_config(tmp_path: Path, **node: str) -> Path:
-    """fieldkit.toml with these [node] values (paths relative to tmp_path) and a [record]."""
+def write_config(tmp_path: Path, tables: str = "", **node: str) -> Path:
+    """fieldkit.toml with these [node] values (paths relative to tmp_path), a [record], and
+    `tables` (more tables, as TOML) last."""
     (tmp_path / "s.bzz").write_text(PLAIN)
     (tmp_path / "rec").mkdir(exist_ok=True)
     values = {"profile": "solo", "script": "s.bzz", "state_dir": "state", **node}
     lines = ["[node]", *(f'{k} = "{v}"' for k, v in values.items())]
-    lines += ["[record]", 'dir = "rec"', "max_mb = 1"]
+    lines += ["[record]", 'dir = "rec"', "max_mb = 1", *tables.splitlines()]
     path = tmp_path / "fieldkit.toml"
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -617,3 +620,142 @@ def test_the_at_command_frame_is_digis(api_mode: int, command: bytes) -> None:
     assert frame == digi
     # By hand: length 4, type 08, frame id 01, "AP", checksum FF - (08 + 01 + 41 + 50) = 65.
     assert AtCommand(1, b"AP").encode(1) == bytes.fromhex("7e 00 04 08 01 41 50 65")
+
+
+# ------------------------------------------------------------------ the Husky and the M100
+
+
+@contextmanager
+def pty_m100() -> Iterator[str]:
+    """A simulated M100 flight controller on a pty (the test app id and key), stepped in
+    real time by a thread as `fieldkit vehicle-sim --profile m100` runs it: yields the
+    path the node (and doctor) opens."""
+    pty = open_pty()
+    fc = SimM100Vehicle(load_profile("m100"), pty.master, home=(45.5049, -73.6133))
+    stop = threading.Event()
+    thread = threading.Thread(target=fc.run, args=(50.0, stop), daemon=True)
+    thread.start()
+    try:
+        yield pty.slave_path
+    finally:
+        stop.set()
+        thread.join()
+        fc.close()
+        pty.close()
+
+
+def dji_table(tmp_path: Path, key: str = TEST_APP_KEY) -> str:
+    """The config's [dji] table, its key in a 0600 file as `fieldkit deploy` installs it."""
+    path = tmp_path / "dji-app-key"
+    path.write_text(key + "\n")
+    path.chmod(0o600)
+    return f'[dji]\napp_id = {TEST_APP_ID}\napp_key_file = "{path}"'
+
+
+def test_a_ready_husky_passes_every_check(tmp_path: Path) -> None:
+    """The simulated Husky (its MCU and its GPS receiver on two ptys) and an XBee: the serial
+    check covers the three devices, the autopilot check goes through the Husky's own link."""
+    keys = robot_keys(tmp_path)
+    with pty_husky() as (mcu, gps, _), fake_xbee() as xbee:
+        config = write_config(tmp_path, profile="husky", autopilot=mcu, gps=gps,
+                              radio=f"serial://{xbee}?baud=230400&api=2", keys=str(keys),
+                              security="signed")  # fmt: skip
+        status, checks, stderr = run(config, "--timeout", "10")
+    assert status == 0, (checks, stderr)
+    assert {s for s, _ in checks.values()} == {"ok"}, checks
+    serial = checks["serial"][1]
+    assert f"{mcu} (autopilot), {gps} (gps), {xbee} (radio): open to this user" in serial
+    assert "clearpath vehicle on" in checks["autopilot"][1]
+    assert "GPS fix type 3, 10 satellites" in checks["autopilot"][1]
+
+
+def test_a_silent_gps_fails_the_autopilot_naming_the_receiver(tmp_path: Path) -> None:
+    with pty_husky() as (mcu, gps, sim):
+        sim.faults.gps_silent = True
+        config = write_config(tmp_path, profile="husky", autopilot=mcu, gps=gps, radio="none")
+        status, checks, stderr = run(config, "--timeout", "1")
+    assert status == 1
+    assert checks["serial"][0] == "ok"
+    state, text = checks["autopilot"]
+    assert state == "FAIL", checks
+    assert "clearpath vehicle on" in text and "answers, but no GPS fix after 1 s" in text
+    assert f"nothing readable from {gps} (0 bytes" in text
+    assert f"fix: check the GPS receiver on {gps}: powered, plugged in" in text
+    assert "gps.baud = 19200" in text and "fieldkit deploy --gps DEV" in text
+    assert "outdoors" not in text  # a cable, not the sky
+    assert errors_of(stderr) == [f"error: 1 of 9 checks failed for {config}: autopilot"]
+
+
+def test_a_missing_gps_device_fails_the_serial_check(tmp_path: Path) -> None:
+    """The GPS is a serial device like the others: missing, it fails the serial check, and
+    the Husky's link (which opens both) is not tried."""
+    with pty_husky() as (mcu, _, _):
+        config = write_config(tmp_path, profile="husky", autopilot=mcu, radio="none",
+                              gps=str(tmp_path / "ttyGPS"))  # fmt: skip
+        status, checks, _ = run(config, "--timeout", "1")
+    assert status == 1
+    state, text = checks["serial"]
+    assert state == "FAIL"
+    assert f"{tmp_path / 'ttyGPS'} (gps, node.gps): missing" in text
+    assert "fix: plug in the GPS receiver" in text and "/dev/gps is made by the udev rule" in text
+    assert checks["autopilot"] == ("skip", "its GPS receiver's device failed the serial check")
+
+
+def test_the_profiles_gps_port_is_checked_when_the_config_names_none(tmp_path: Path) -> None:
+    config = write_config(tmp_path, profile="husky", autopilot="/dev/null", radio="none")
+    status, checks, _ = run(config, "--timeout", "1")
+    assert status == 1
+    text = checks["serial"][1]
+    assert "/dev/ttyUSB1 (gps, the husky profile's gps.port): missing" in text
+
+
+def test_a_ready_m100_passes_every_check(tmp_path: Path) -> None:
+    """The simulated M100 (vehicle-sim's) accepts the test app: activated, control granted,
+    a GPS fix; the key is in no line of the report."""
+    keys = robot_keys(tmp_path)
+    with pty_m100() as fc, fake_xbee() as xbee:
+        config = write_config(tmp_path, dji_table(tmp_path), profile="m100", autopilot=fc,
+                              radio=f"serial://{xbee}?baud=230400&api=2", keys=str(keys),
+                              security="signed")  # fmt: skip
+        status, checks, stderr = run(config, "--timeout", "10")
+    assert status == 0, (checks, stderr)
+    assert {s for s, _ in checks.values()} == {"ok"}, checks
+    assert f"dji vehicle on {fc}: mode" in checks["autopilot"][1]
+    assert "GPS fix type 3" in checks["autopilot"][1]
+    assert f"{fc} (autopilot)" in checks["serial"][1]
+    assert not [t for _, t in checks.values() if TEST_APP_KEY[:16] in t.lower()]
+    assert TEST_APP_KEY[:16] not in stderr.lower()
+
+
+def test_a_wrong_dji_app_key_fails_clearly(tmp_path: Path) -> None:
+    """A key the M100 was not activated with: its KEY_ERROR, and the fix names the key
+    file and deploy's options; neither key appears anywhere."""
+    wrong = "f" * 64
+    with pty_m100() as fc:
+        config = write_config(tmp_path, dji_table(tmp_path, wrong), profile="m100",
+                              autopilot=fc, radio="none")  # fmt: skip
+        result = runner.invoke(app, ["doctor", "--config", str(config), "--timeout", "5"])
+    assert result.exit_code == 1, result.output
+    checks = _checks(result.stdout)
+    state, text = checks["autopilot"]
+    assert state == "FAIL", checks
+    assert "control authority refused: 0xFF00 KEY_ERROR" in text
+    assert (
+        f"fix: the app key of the config's [dji] is not the one DJI gave app {TEST_APP_ID}" in text
+    )
+    assert "--dji-app-key-file FILE" in text
+    for key in (wrong, TEST_APP_KEY):
+        assert key not in result.output and key[:16] not in result.output
+
+
+def test_an_m100_config_without_its_app_fails_the_autopilot(tmp_path: Path) -> None:
+    config = write_config(tmp_path, profile="m100", autopilot="/dev/null", radio="none")
+    status, checks, _ = run(config, "--timeout", "1")
+    assert status == 1
+    state, text = checks["autopilot"]
+    assert state == "FAIL" and "needs the developer's app id and app key" in text, text
+
+
+def errors_of(stderr: str) -> list[str]:
+    """The `error:` lines."""
+    return [line for line in stderr.splitlines() if line.startswith("error: ")]

@@ -573,7 +573,8 @@ def test_a_profile_that_asks_for_signed_bundles_needs_keys(tmp_path: Path) -> No
 
 def test_usb_ids_are_optional_and_lower_cased(tmp_path: Path) -> None:
     """[usb] gives the serial adapters' ids for deploy's udev rules; without it, none."""
-    assert load_profile("husky").usb.autopilot == "26ac:0011"
+    husky = load_profile("husky").usb
+    assert (husky.autopilot, husky.radio, husky.gps) == ("067b:2303", "0403:6015", "1546:01a8")
     assert load_profile("solo").usb.radio == "0403:6015"
     assert load_profile("solo").usb.autopilot is None  # the Solo's autopilot is on WiFi
     path = variant(tmp_path, "spiri", 'radio = "0403:6015"', 'radio = "0403:60AB"')
@@ -585,6 +586,16 @@ def test_usb_ids_are_optional_and_lower_cased(tmp_path: Path) -> None:
     bare = tmp_path / "bare.toml"
     bare.write_text(text[: text.index("[usb]")], encoding="utf-8")
     assert load_profile(bare).usb == UsbIds(autopilot=None, radio=None)
+    # A GPS receiver's adapter only where the profile has a receiver of its own ([gps]).
+    path = variant(
+        tmp_path, "spiri", 'radio = "0403:6015"', 'radio = "0403:6015"\ngps = "1546:01a8"'
+    )
+    with pytest.raises(ProfileError, match=r"usb\.gps: names a GPS receiver's adapter, and the "
+                       r"profile has no \[gps\] table"):  # fmt: skip
+        load_profile(path)
+    path = variant(tmp_path, "husky", 'gps = "1546:01a8"', 'gps = "u-blox"')
+    with pytest.raises(ProfileError, match=r"usb\.gps: must be VENDOR:PRODUCT"):
+        load_profile(path)
 
 
 @pytest.mark.parametrize(

@@ -67,6 +67,32 @@ def deploy_cmd(
             "profile's.",
         ),
     ] = None,
+    gps: Annotated[
+        str | None,
+        typer.Option(
+            "--gps",
+            metavar="DEV",
+            help="A Clearpath base's GPS receiver (a serial device); default: /dev/gps with "
+            "the profile's [usb] gps id, else the profile's [gps] port.",
+        ),
+    ] = None,
+    dji_app_id: Annotated[
+        int | None,
+        typer.Option(
+            "--dji-app-id",
+            metavar="N",
+            help="An M100 (flavour dji): the developer's app id, from DJI's developer site.",
+        ),
+    ] = None,
+    dji_app_key_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--dji-app-key-file",
+            metavar="FILE",
+            help="An M100: a file (mode 0600) holding the app key, 64 hex digits; installed "
+            "as /etc/fieldkit/dji-app-key, 0600, the service's.",
+        ),
+    ] = None,
     keys: Annotated[
         Path | None,
         typer.Option(
@@ -168,7 +194,10 @@ def deploy_cmd(
             robot_id=robot_id,
             autopilot=autopilot,
             radio=radio,
+            gps=gps,
             keys=keys,
+            dji_app_id=dji_app_id,
+            dji_app_key_file=dji_app_key_file,
             originator=originator,
             operator_keys=operator_keys,
         )

@@ -1,10 +1,11 @@
 """/etc/fieldkit/fieldkit.toml: the one file the service reads (`fieldkit node --config`).
 
-A `[node]` table of `fieldkit node`'s options (underscores for dashes) and a `[record]` table
-for the recording, written by a small TOML writer: strings, integers, floats, booleans and
-lists of strings are all a config needs, and writing them is a few lines (Python reads TOML,
-`tomllib`, but does not write it). Each value may carry a comment, so the file says where
-its values came from.
+A `[node]` table of `fieldkit node`'s options (underscores for dashes), a `[record]` table
+for the recording and, for an M100, a `[dji]` table naming its app (the key in a file of
+its own, never in this one, which anyone may read). Written by a small TOML writer:
+strings, integers, floats, booleans and lists of strings are all a config needs, and
+writing them is a few lines (Python reads TOML, `tomllib`, but does not write it). Each
+value may carry a comment, so the file says where its values came from.
 """
 
 from __future__ import annotations
@@ -97,6 +98,8 @@ class NodeConfig:
     keys: bool = False  # the robot's keys are installed: signed bundles
     include: bool = False  # the script has includes
     originator: bool = False  # the update monitor writes patches into the outbox
+    gps: str | None = None  # a Clearpath base's GPS receiver
+    dji_app_id: int | None = None  # an M100's app: its key is installed as layout.DJI_APP_KEY
 
 
 def node_config(config: NodeConfig) -> str:
@@ -108,6 +111,8 @@ def node_config(config: NodeConfig) -> str:
         node.append(Key("autopilot", config.autopilot))
     if config.radio is not None:
         node.append(Key("radio", config.radio))
+    if config.gps is not None:
+        node.append(Key("gps", config.gps))
     node.append(Key("state_dir", str(layout.NODE_STATE_DIR), "script versions, counters"))
     if config.script is not None:
         node.append(Key("script", config.script, "seeds an empty state_dir (version 0)"))
@@ -123,7 +128,14 @@ def node_config(config: NodeConfig) -> str:
         Key("max_mb", RECORD_MAX_MB, "one recording's cap"),
         Key("keep_mb", RECORD_KEEP_MB, "all recordings together"),
     ]
-    return render_toml(HEADER, [("node", node), ("record", record)])
+    tables: list[tuple[str, Sequence[Key]]] = [("node", node), ("record", record)]
+    if config.dji_app_id is not None:
+        dji = [
+            Key("app_id", config.dji_app_id),
+            Key("app_key_file", str(layout.DJI_APP_KEY), "64 hex digits, 0600, fieldkit's"),
+        ]
+        tables.append(("dji", dji))
+    return render_toml(HEADER, tables)
 
 
 __all__ = [

@@ -130,7 +130,9 @@ def dry_run(plan: Plan, installer: Installer, live: bool, say: Callable[[str], N
             say(f"link {where} -> {entry.target} ({state})")
         else:
             say(f"file {where} (mode {entry.mode:04o}{_owner(entry.owner)}, {state})")
-            if entry.is_text:
+            if entry.secret is not None:
+                say(f"    <secret: {entry.secret}>")
+            elif entry.is_text:
                 for line in entry.data.decode().splitlines():
                     say(f"    | {line}")
             else:

@@ -91,8 +91,8 @@ INDENT = " " * 6
 Status = Literal["ok", "FAIL", "skip"]
 """A check's outcome: passed, failed, or not run."""
 
-Role = Literal["autopilot", "radio"]
-"""What a serial device is for."""
+Role = Literal["autopilot", "radio", "gps"]
+"""What a serial device is for (gps: a receiver on its own port, a Clearpath base's)."""
 
 
 # ----------------------------------------------------------------------------- results
@@ -339,8 +339,9 @@ class Device:
 
 @dataclass(frozen=True)
 class Links:
-    """The node's two links as the settings name them: serial devices to check, network
-    links (no device), and settings that do not parse (role, problem, fix)."""
+    """The node's links as the settings name them (the autopilot, the radio, a Clearpath
+    base's GPS receiver): serial devices to check, network links (no device), and settings
+    that do not parse (role, problem, fix)."""
 
     devices: tuple[Device, ...] = ()
     network: tuple[str, ...] = ()
@@ -371,6 +372,10 @@ def node_links(settings: Settings, profile: Profile) -> Links:
         devices.append(Device("autopilot", url, source))
     else:
         network.append(f"autopilot {url}")
+    if settings.gps is not None:
+        devices.append(Device("gps", settings.gps, "node.gps"))
+    elif profile.gps is not None:
+        devices.append(Device("gps", profile.gps.port, f"the {profile.name} profile's gps.port"))
     radio = settings.radio
     if radio is None:
         if profile.radio.kind == "xbee":
@@ -403,8 +408,12 @@ _RADIO_URL_FIX = (
 
 
 def _missing_fix(device: Device) -> str:
-    what = "the autopilot's serial or USB cable" if device.role == "autopilot" else "the XBee"
-    named = {"autopilot": "/dev/autopilot", "radio": "/dev/xbee"}[device.role]
+    what = {
+        "autopilot": "the autopilot's serial or USB cable",
+        "radio": "the XBee",
+        "gps": "the GPS receiver",
+    }[device.role]
+    named = {"autopilot": "/dev/autopilot", "radio": "/dev/xbee", "gps": "/dev/gps"}[device.role]
     return (
         f"plug in {what} and find it with `ls -l /dev/serial/by-id/`; {named} is made by "
         f"the udev rule `fieldkit deploy` installs from the profile's USB ids (`udevadm "
@@ -544,13 +553,15 @@ def check_vehicle(
         try:
             link.wait_heartbeat(timeout)
         except AutopilotError as e:
-            return _fail("autopilot", str(e), fix)
+            return _fail("autopilot", str(e), _dji_key_fix(link, app_id) or fix)
         fix_s = min(profile.autopilot.gps_fix_timeout_s, timeout)
         try:
             t = link.wait_gps_fix(fix_s)
         except AutopilotError as e:
             return _fail(
-                "autopilot", f"{flavour} vehicle on {url} answers, but {e}", _no_fix(profile)
+                "autopilot",
+                f"{flavour} vehicle on {url} answers, but {e}",
+                _silent_gps_fix(link, profile) or _no_fix(profile),
             )
     finally:
         link.close()
@@ -559,6 +570,35 @@ def check_vehicle(
         "autopilot",
         f"{flavour} vehicle on {url}: mode {t.mode}, {'armed' if t.armed else 'disarmed'}, "
         f"GPS fix type {t.gps_fix_type}, {sats} satellites",
+    )
+
+
+def _dji_key_fix(link: object, app_id: int | None) -> str | None:
+    """The fix when an M100 refused the app key (KEY_ERROR), else None. Never the key."""
+    from fieldkit.vehicle.dji.link import DjiLink
+
+    if not (isinstance(link, DjiLink) and link.core.key_rejected):
+        return None
+    return (
+        f"the app key of the config's [dji] is not the one DJI gave app {app_id}: copy it "
+        "again from DJI's developer site into the key file (64 hex digits, mode 0600; "
+        "`fieldkit deploy --dji-app-id N --dji-app-key-file FILE` installs it as "
+        f"{layout.DJI_APP_KEY}), then run doctor again"
+    )
+
+
+def _silent_gps_fix(link: object, profile: Profile) -> str | None:
+    """The fix when a Clearpath base's GPS receiver sent nothing readable, else None (a
+    receiver that talks but has no fix yet needs the sky, not a cable)."""
+    from fieldkit.vehicle.clearpath.link import Husky
+
+    if not (isinstance(link, Husky) and link.gps.messages == 0):
+        return None
+    baud = profile.gps.baud if profile.gps is not None else "?"
+    return (
+        f"check the GPS receiver on {link.gps.url}: powered, plugged in, sending NMEA (or UBX) "
+        f"at gps.baud = {baud}; find it with `ls -l /dev/serial/by-id/` and set node.gps (or "
+        "`fieldkit deploy --gps DEV`) if it is on another port"
     )
 
 
@@ -1178,6 +1218,8 @@ def run_checks(
     r = blocked("autopilot", ("profile",))
     if r is None and "autopilot" in bad_roles:
         r = _skip("autopilot", "its serial device failed the serial check", cause="serial")
+    if r is None and "gps" in bad_roles:  # a Clearpath base's link opens both
+        r = _skip("autopilot", "its GPS receiver's device failed the serial check", cause="serial")
     if r is None:
         assert settings is not None and profile is not None
         url, _ = autopilot_url(settings, profile)

@@ -65,9 +65,11 @@ class File:
     """A file deploy installs."""
 
     path: PurePosixPath
-    data: bytes
+    data: bytes = field(repr=False)  # a key's bytes: never in a repr or a traceback
     mode: int
     owner: str | None = None
+    #: A secret's description (`64 hex digits`): what --dry-run shows instead of its bytes.
+    secret: str | None = None
 
     @property
     def sha256(self) -> str:

@@ -17,6 +17,8 @@ KEYS_DIR = ETC_DIR / "keys"
 """The robot's keys: operator.pub and swarm.key, never operator.key."""
 OPERATOR_KEYS_DIR = ETC_DIR / "operator-keys"
 """An originator's keys (`--originator --operator-keys`): the signing key too."""
+DJI_APP_KEY = ETC_DIR / "dji-app-key"
+"""An M100's app key (`--dji-app-key-file`): 0600, the fieldkit user's, named by [dji]."""
 PROFILES_DIR = ETC_DIR / "profiles"
 """A profile given as a file rather than a shipped name is installed here."""
 MANIFEST = ETC_DIR / "deploy-manifest.json"
@@ -56,6 +58,8 @@ AUTOPILOT_DEVICE = PurePosixPath("/dev/autopilot")
 """The autopilot's serial adapter, named by the udev rule from the profile's USB id."""
 RADIO_DEVICE = PurePosixPath("/dev/xbee")
 """The XBee's serial adapter, named by the udev rule from the profile's USB id."""
+GPS_DEVICE = PurePosixPath("/dev/gps")
+"""A GPS receiver's serial adapter (a Clearpath base's), named by the udev rule."""
 
 
 def under(root: Path, target: PurePosixPath) -> Path:
@@ -66,7 +70,9 @@ def under(root: Path, target: PurePosixPath) -> Path:
 __all__ = [
     "AUTOPILOT_DEVICE",
     "CONFIG",
+    "DJI_APP_KEY",
     "ETC_DIR",
+    "GPS_DEVICE",
     "INCLUDE_DIR",
     "KEPT_DIRS",
     "KEYS_DIR",

@@ -1,10 +1,12 @@
-"""The node's two links, the autopilot and the radio, as the service will open them.
+"""The node's links, the autopilot, the radio and a GPS receiver of its own (a Clearpath
+base's), as the service will open them.
 
-From the profile and the `--autopilot` / `--radio` options this module decides, for each
-link: what goes into fieldkit.toml (nothing when the profile's own setting stands), which
+From the profile and the `--autopilot` / `--radio` / `--gps` options this module decides, for
+each link: what goes into fieldkit.toml (nothing when the profile's own setting stands), which
 serial device the service must be allowed to open (`DeviceAllow=`), whether it needs the
 network (then no `PrivateNetwork=`) and which addresses it talks to (`IPAddressAllow=`),
-and which udev rule gives a USB adapter its stable name (/dev/autopilot, /dev/xbee).
+and which udev rule gives a USB adapter its stable name (/dev/autopilot, /dev/xbee,
+/dev/gps).
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ _ANY = ("", "0.0.0.0", "::", "localhost")
 class UsbRule:
     """A udev rule: the adapter with this USB id is /dev/NAME, for dialout."""
 
-    name: str  # "autopilot" or "xbee": /dev/NAME
+    name: str  # "autopilot", "xbee" or "gps": /dev/NAME
     vendor: str  # four lower-case hex digits
     product: str
 
@@ -52,7 +54,7 @@ class UsbRule:
 class Link:
     """One link of the node as the service opens it."""
 
-    what: str  # "autopilot" or "radio", for messages
+    what: str  # "autopilot", "radio" or "gps", for messages and the option (--what)
     config: str | None  # the value for fieldkit.toml; None: the profile's own setting
     device: str | None = None  # the serial device the service opens
     network: bool = False  # the link is IP: the service needs the network
@@ -153,6 +155,38 @@ def _radio(url: str) -> Link:
     )
 
 
+def gps_link(profile: Profile, given: str | None) -> tuple[Link | None, list[str]]:
+    """A GPS receiver on a port of its own (a Clearpath base's; None for an autopilot that
+    has its GPS inside): `--gps DEV`, else /dev/gps when the profile gives the receiver's USB
+    id, else the profile's `[gps] port`."""
+    settings = profile.gps
+    if settings is None:
+        if given is not None:
+            raise DeployError(
+                f"--gps {given}: the {profile.name} profile's GPS is inside its autopilot "
+                f"(flavour {profile.autopilot.flavour})\nhint: --gps is for a base with a GPS "
+                'receiver of its own (flavour "clearpath", a [gps] table in the profile)'
+            )
+        return None, []
+    if given is not None:
+        path = _serial_path(given)
+        if path is None or path != given:
+            raise DeployError(
+                f"--gps {given}: not a serial device path\nhint: give the receiver's device, "
+                "such as /dev/ttyUSB1 (its baud is the profile's gps.baud)"
+            )
+        return Link("gps", given, device=given, described=f"--gps {given}"), []
+    usb = profile.usb.gps
+    if usb is not None:
+        vendor, product = usb.split(":")
+        device = str(layout.GPS_DEVICE)
+        described = f"{device} (USB {usb}, the {profile.name} profile's [usb] gps)"
+        rule = UsbRule("gps", vendor, product)
+        return Link("gps", device, device=device, usb=rule, described=described), []
+    described = f"{settings.port} (the {profile.name} profile's [gps] port)"
+    return Link("gps", None, device=settings.port, described=described), []
+
+
 def _serial_path(url: str) -> str | None:
     """The device of a serial connection string (`/dev/ttyS1,57600` -> /dev/ttyS1), or None."""
     if not url.startswith("/"):
@@ -196,6 +230,7 @@ __all__ = [
     "Link",
     "UsbRule",
     "autopilot_link",
+    "gps_link",
     "ip_allow_list",
     "named_hosts",
     "radio_link",

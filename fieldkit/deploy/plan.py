@@ -22,7 +22,15 @@ import fieldkit
 from fieldkit.deploy import DeployError, layout
 from fieldkit.deploy.config_file import NodeConfig, node_config
 from fieldkit.deploy.install import Dir, Entry, File, Symlink
-from fieldkit.deploy.links import Link, autopilot_link, ip_allow_list, named_hosts, radio_link
+from fieldkit.deploy.links import (
+    Link,
+    UsbRule,
+    autopilot_link,
+    gps_link,
+    ip_allow_list,
+    named_hosts,
+    radio_link,
+)
 from fieldkit.deploy.script import ScriptInstall, prepare
 from fieldkit.deploy.units import (
     NodeService,
@@ -60,7 +68,10 @@ class Options:
     robot_id: int | None = None
     autopilot: str | None = None
     radio: str | None = None
+    gps: str | None = None  # a Clearpath base's GPS receiver
     keys: Path | None = None
+    dji_app_id: int | None = None  # an M100's app (flavour dji): its id...
+    dji_app_key_file: Path | None = None  # ...and the file holding its key
     originator: bool = False
     operator_keys: Path | None = None
     python: str = field(default_factory=lambda: sys.executable)
@@ -101,9 +112,14 @@ def make_plan(options: Options, machine: Machine) -> Plan:
     warnings += more
     radio, more = radio_link(profile, options.radio)
     warnings += more
-    links = (autopilot, radio)
+    gps, more = gps_link(profile, options.gps)
+    warnings += more
+    links = (autopilot, radio) if gps is None else (autopilot, radio, gps)
+    rules = [link.usb for link in links if link.usb is not None]
+    _check_rules(profile, rules)
     for link in links:
         _check_device(link, machine, warnings)
+    dji_key = _dji_app(profile, options)
     protect_home = _check_interpreter(options.python, machine, warnings)
     script = prepare(options.script) if options.script is not None else None
     operator_keys = (
@@ -129,7 +145,7 @@ def make_plan(options: Options, machine: Machine) -> Plan:
         keys = _originator_keys(keys, operator_keys, options)
 
     network = autopilot.network or radio.network
-    devices = tuple(dict.fromkeys(d for d in (autopilot.device, radio.device) if d))
+    devices = tuple(dict.fromkeys(link.device for link in links if link.device))
     ip_allow = ip_allow_list(links) if network else None
     if network and ip_allow is None:
         warnings.append(
@@ -150,12 +166,13 @@ def make_plan(options: Options, machine: Machine) -> Plan:
         robot_id=options.robot_id,
         autopilot=autopilot.config,
         radio=radio.config,
+        gps=gps.config if gps is not None else None,
         script=str(script.target) if script is not None else None,
         keys=bool(keys),
         include=script is not None and script.has_includes,
         originator=options.originator,
+        dji_app_id=options.dji_app_id if dji_key is not None else None,
     )
-    rules = [link.usb for link in links if link.usb is not None]
 
     def text(path: PurePosixPath, content: str, mode: int = 0o644) -> File:
         """A text file of the install."""
@@ -167,14 +184,16 @@ def make_plan(options: Options, machine: Machine) -> Plan:
         File(layout.LOCK, b"", 0o600),
         text(layout.CONFIG, node_config(config)),
         Dir(layout.KEYS_DIR, 0o700, layout.USER),
-        *[File(layout.KEYS_DIR / name, data, 0o600, layout.USER) for name, data in keys],
+        *[_key_file(layout.KEYS_DIR / name, data) for name, data in keys],
         text(unit, node_unit(node)),
         Symlink(layout.WANTS_DIR / layout.NODE_UNIT, str(unit)),
         text(layout.SYSUSERS, sysusers()),
-        text(layout.TMPFILES, tmpfiles(options.originator)),
+        text(layout.TMPFILES, tmpfiles(options.originator, dji_key is not None)),
         Dir(layout.STATE_DIR, 0o750, layout.USER),
         Dir(layout.LOG_DIR, 0o750, layout.USER),
     ]
+    if dji_key is not None:
+        entries.append(dji_key)
     if not shipped:
         assert profile.path is not None  # loaded from a file
         entries += [
@@ -203,10 +222,7 @@ def make_plan(options: Options, machine: Machine) -> Plan:
         update_path = layout.UNIT_DIR / layout.UPDATE_UNIT
         entries += [
             Dir(layout.OPERATOR_KEYS_DIR, 0o700, layout.USER),
-            *[
-                File(layout.OPERATOR_KEYS_DIR / name, data, 0o600, layout.USER)
-                for name, data in operator_keys
-            ],
+            *[_key_file(layout.OPERATOR_KEYS_DIR / name, data) for name, data in operator_keys],
             text(update_path, update_unit(update)),
             Symlink(layout.WANTS_DIR / layout.UPDATE_UNIT, str(update_path)),
         ]
@@ -270,6 +286,90 @@ def _robot_id(profile: Profile, given: int | None, machine: Machine, warnings: l
             raise DeployError(f"{problem}\nhint: give --robot-id N, or rename the host (solo3)")
         return "robot id from the robot's host name"
     return f"robot id from the robot's {source.source}"
+
+
+def _check_rules(profile: Profile, rules: list[UsbRule]) -> None:
+    """Two adapters with one USB id: a udev rule matching on the id cannot tell them apart
+    (both would get both names), so the node might open its GPS as its MCU."""
+    seen: dict[tuple[str, str], str] = {}
+    for rule in rules:
+        other = seen.setdefault((rule.vendor, rule.product), rule.name)
+        if other != rule.name:
+            raise DeployError(
+                f"the {profile.name} profile's [usb] gives {other} and {rule.name} one USB id, "
+                f"{rule.vendor}:{rule.product}: a udev rule cannot tell the two adapters apart"
+                f"\nhint: give one of them by its device (--{_option(other)} or "
+                f"--{_option(rule.name)} /dev/serial/by-id/...), or drop its id from [usb]"
+            )
+
+
+def _option(rule_name: str) -> str:
+    """The option that gives a link's device: the XBee's rule is the radio's."""
+    return "radio" if rule_name == "xbee" else rule_name
+
+
+def _dji_app(profile: Profile, options: Options) -> File | None:
+    """An M100's app key file, checked and ready to install 0600 for the fieldkit user;
+    None for other flavours. Its bytes are never put in a message."""
+    values = {"--dji-app-id": options.dji_app_id, "--dji-app-key-file": options.dji_app_key_file}
+    given = [name for name, value in values.items() if value is not None]
+    flavour = profile.autopilot.flavour
+    if flavour != "dji":
+        if given:
+            said = " and ".join(f"{name} {values[name]}" for name in given)
+            raise DeployError(
+                f"{said}: for a DJI M100 (flavour dji); the {profile.name} profile's autopilot "
+                f"is {flavour}\nhint: leave {' and '.join(given)} out"
+            )
+        return None
+    missing = [n for n in ("--dji-app-id", "--dji-app-key-file") if n not in given]
+    if missing:
+        raise DeployError(
+            f"the {profile.name} profile's autopilot is a DJI flight controller (flavour dji), "
+            f"activated with the developer's app: give {' and '.join(missing)}\nhint: "
+            "--dji-app-id N --dji-app-key-file FILE, the app's id and key (64 hex digits, in "
+            "a file of mode 0600) from DJI's developer site"
+        )
+    assert options.dji_app_id is not None and options.dji_app_key_file is not None
+    app_id, where = options.dji_app_id, options.dji_app_key_file
+    if not 0 < app_id <= 0xFFFFFFFF:
+        raise DeployError(f"--dji-app-id must be 1..4294967295, got {app_id}")
+    return File(layout.DJI_APP_KEY, _read_app_key(where), 0o600, layout.USER, DJI_KEY_SHOWN)
+
+
+#: How --dry-run shows the DJI app key file: what it holds, never its digits.
+DJI_KEY_SHOWN = "64 hex digits"
+
+
+def _read_app_key(where: Path) -> bytes:
+    """The app key in `where` as the node reads it (64 hex digits, blanks around ignored),
+    to install; DeployError naming the file (never its contents) if it is not one, or if
+    others may read it."""
+    from fieldkit.vehicle.dji.crypto import AppKeyError, parse_app_key
+
+    try:
+        st = where.stat()
+        raw = where.read_bytes()
+    except OSError as e:
+        raise DeployError(f"--dji-app-key-file {where}: cannot read: {e.strerror or e}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise DeployError(f"--dji-app-key-file {where}: not a regular file")
+    try:
+        key = raw.decode("ascii").strip()
+        parse_app_key(key)
+    except (UnicodeDecodeError, AppKeyError) as e:
+        # AppKeyError says how long or which character, never the key.
+        reason = "not ASCII text" if isinstance(e, UnicodeDecodeError) else str(e)
+        raise DeployError(
+            f"--dji-app-key-file {where}: {reason}\nhint: the file holds the app key alone, "
+            "as DJI's developer site shows it"
+        ) from None
+    if st.st_mode & 0o077:
+        raise DeployError(
+            f"--dji-app-key-file {where}: readable by others (mode "
+            f"{stat.S_IMODE(st.st_mode):04o}): the app key is a secret\nhint: chmod 600 {where}"
+        )
+    return (key + "\n").encode("ascii")
 
 
 def _check_device(link: Link, machine: Machine, warnings: list[str]) -> None:
@@ -400,6 +500,13 @@ def _originator_keys(
             "originator then takes them from --operator-keys)"
         )
     return keys
+
+
+def _key_file(target: PurePosixPath, data: bytes) -> File:
+    """A key file, 0600 for the fieldkit user; a private one (the swarm key, the operator's
+    signing key) never shown by --dry-run."""
+    secret = None if target.name == OPERATOR_PUB else "a private key"
+    return File(target, data, 0o600, layout.USER, secret)
 
 
 def _read_key(path: Path) -> bytes:

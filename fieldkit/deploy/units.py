@@ -186,10 +186,11 @@ def sysusers() -> str:
     return render("fieldkit.sysusers", {})
 
 
-def tmpfiles(originator: bool) -> str:
+def tmpfiles(originator: bool, dji_app_key: bool = False) -> str:
     """tmpfiles.d/fieldkit.conf: fieldkit's directories; key directories the user's alone
     (`Z ... ~0700`: 0700 for the directory, 0600 for the key files, owned by fieldkit, at
-    every boot, so a staged image's keys need no chown)."""
+    every boot, so a staged image's keys need no chown); with `dji_app_key`, an M100's app
+    key file the same (`z`: the file alone, if it is there)."""
     lines = ["# The robot's keys (operator.pub, swarm.key): the fieldkit user's alone."]
     dirs = [layout.KEYS_DIR]
     if originator:
@@ -197,6 +198,9 @@ def tmpfiles(originator: bool) -> str:
     for d in dirs:
         lines += [f"d {d} 0700 {layout.USER} {layout.USER} -"]
         lines += [f"Z {d} ~0700 {layout.USER} {layout.USER} -"]
+    if dji_app_key:
+        lines += ["# The M100's DJI app key: read by the node alone."]
+        lines += [f"z {layout.DJI_APP_KEY} 0600 {layout.USER} {layout.USER} -"]
     return render("fieldkit.tmpfiles", {"KEY_DIRS": "\n".join(lines)})
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 from typing import cast
 
-from fieldkit.node.health import LinkHealth
+from fieldkit.node.health import LinkHealth, policy_health
 from fieldkit.robot import geo
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import FLIGHT_STATUSES, IN_AIR, ON_GROUND, FlightStatus
@@ -85,18 +85,12 @@ class MavlinkAutopilot:
 
     def link_health(self, now: float) -> LinkHealth:
         """The serial device's losses at `now` (the link's clock: the node's); a link that
-        does not reopen a device (a network one, DJI's) reports none."""
+        does not reopen a device (a network one) reports none."""
         link = self.link
         policy = getattr(link, "reopen", None)
         if not isinstance(policy, ReopenPolicy):
             return LinkHealth()
-        current = policy.down_for(now) if policy.down else None
-        return LinkHealth(
-            down_for_s=current,
-            outages=policy.outages,
-            down_s=policy.down_s + (current or 0.0),
-            dropped=int(getattr(link, "bytes_dropped", 0)),
-        )
+        return policy_health(now, int(getattr(link, "bytes_dropped", 0)), policy)
 
     def counters(self) -> tuple[int, int]:
         """(MAVLink messages received, bad frames)."""

@@ -1,7 +1,8 @@
 """Device loss as the node reports it: its autopilot's and its radio's outages.
 
 A serial device that vanishes (a loose USB cable) is closed and reopened by its transport
-(fieldkit/vehicle/reopen.py for the autopilot's link, the XBee radio's own reopening). The
+(fieldkit/vehicle/reopen.py's policy for every vehicle link: MAVLink's, the M100's, the
+Husky's two ports, which count as its autopilot's; the XBee radio's own reopening). The
 node reads how that went for `systemctl status` and summary.json: whether each device is
 down now and for how long, how many times it was lost, how long it was down in all, and
 what was dropped meanwhile (the autopilot's bytes, the radio's frames). A UDP radio or a
@@ -12,6 +13,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
+
+from fieldkit.vehicle.reopen import ReopenPolicy
 
 
 @dataclass(frozen=True)
@@ -46,6 +49,18 @@ class ReportsLinkHealth(Protocol):
         """Its device's losses at `now` (the node's clock)."""
 
 
+def policy_health(now: float, dropped: int, *policies: ReopenPolicy) -> LinkHealth:
+    """The losses of the devices behind `policies` at `now`, as one: down while any is (for
+    the longest current outage), their outages and seconds down added up."""
+    current = [p.down_for(now) for p in policies if p.down]
+    return LinkHealth(
+        down_for_s=max(current) if current else None,
+        outages=sum(p.outages for p in policies),
+        down_s=sum(p.down_s for p in policies) + sum(current),
+        dropped=dropped,
+    )
+
+
 def radio_health(radio: object) -> LinkHealth:
     """A radio's device losses: the XBee's (reopened serial port), none for others."""
     from fieldkit.radio.xbee_serial import XBeeRadio
@@ -62,4 +77,4 @@ def radio_health(radio: object) -> LinkHealth:
     )
 
 
-__all__ = ["LinkHealth", "ReportsLinkHealth", "radio_health"]
+__all__ = ["LinkHealth", "ReportsLinkHealth", "policy_health", "radio_health"]

@@ -210,12 +210,14 @@ class UsbIds:
     """The USB adapters of the robot's serial links, as `VENDOR:PRODUCT` (lower-case hex).
 
     `fieldkit deploy` turns them into udev rules that give the adapters stable names,
-    /dev/autopilot and /dev/xbee, whatever ttyUSB/ttyACM number the kernel hands out; None
-    where the link is not a USB serial adapter (a UART, a network link) or is not known.
+    /dev/autopilot, /dev/xbee and /dev/gps, whatever ttyUSB/ttyACM number the kernel hands
+    out; None where the link is not a USB serial adapter (a UART, a network link) or is not
+    known.
     """
 
     autopilot: str | None = None
     radio: str | None = None
+    gps: str | None = None  # a GPS receiver on a port of its own ([gps]: a Clearpath base)
 
 
 @dataclass(frozen=True)
@@ -540,7 +542,7 @@ _RADIO = (
     "security",
 )
 _ROBOT_ID = ("source", "value")
-_USB = ("autopilot", "radio")
+_USB = ("autopilot", "radio", "gps")
 _DJI = ("broadcast_hz", "control_rate_hz", "encrypt")
 _GPS = ("port", "baud", "protocol", "timeout_s")
 _DRIVE = ("wheel_separation_m", "max_turn_rate_rps")
@@ -571,6 +573,8 @@ def parse_profile(data: Mapping[str, Any], source: str, path: Path | None = None
     dji = _dji(c, c.table(data, "dji", _DJI, False), autopilot)
     clearpath = autopilot is not None and autopilot.flavour == "clearpath"
     gps = _gps(c, c.table(data, "gps", _GPS, False), "gps" in data, clearpath)
+    if usb is not None and usb.gps is not None and "gps" not in data:
+        c.fail("usb.gps", "names a GPS receiver's adapter, and the profile has no [gps] table")
     drive = _drive(c, c.table(data, "drive", _DRIVE, False), "drive" in data, clearpath)
 
     if c.problems:
@@ -933,16 +937,19 @@ def _usb_id(c: _Checker, where: str, v: Any) -> str | None:
 
 
 def _usb(c: _Checker, t: dict[str, Any] | None) -> UsbIds | None:
-    """[usb]: optional USB ids of the autopilot's and the radio's serial adapters."""
+    """[usb]: optional USB ids of the serial adapters: the autopilot's, the radio's, and a
+    GPS receiver's of its own."""
     if t is None:
         return None
     autopilot = c.get(t, "usb.autopilot", _usb_id, _ABSENT)
     radio = c.get(t, "usb.radio", _usb_id, _ABSENT)
-    if autopilot is None or radio is None:  # a problem was recorded
+    gps = c.get(t, "usb.gps", _usb_id, _ABSENT)
+    if autopilot is None or radio is None or gps is None:  # a problem was recorded
         return None
     return UsbIds(
         autopilot=None if autopilot is _ABSENT else autopilot,
         radio=None if radio is _ABSENT else radio,
+        gps=None if gps is _ABSENT else gps,
     )
 
 

@@ -36,7 +36,6 @@ between polls leaves at once), and adds the bounded blocking waits used at start
 
 from __future__ import annotations
 
-import os
 import select
 import time
 from collections.abc import Callable
@@ -56,6 +55,7 @@ from fieldkit.vehicle.autopilot import (
 from fieldkit.vehicle.mavlink import adopt_codec
 from fieldkit.vehicle.px4 import Px4Core
 from fieldkit.vehicle.reopen import DEFAULT_INTERVAL_S, ReopenPolicy
+from fieldkit.vehicle.serial_port import close_quietly, port_reason
 
 # A single poll reads at most this much, so that a flooded line cannot starve the loop.
 _MAX_READ_PER_POLL = 1 << 16
@@ -137,7 +137,7 @@ class Autopilot(AutopilotCore):
         self.cancel_all("link closed")
         conn, self._conn = self._conn, None
         if conn is not None:
-            _close_quietly(conn)
+            close_quietly(conn)
 
     def __enter__(self) -> Autopilot:
         """Use as a context manager: closed on exit."""
@@ -174,7 +174,7 @@ class Autopilot(AutopilotCore):
                 conn.write(bytes(buf))
         except Exception as e:  # a dead port costs a counter, not the loop
             if self.serial:
-                self._lost(_port_reason("write failed", e))
+                self._lost(port_reason("write failed", e))
             else:
                 self._link_error(f"write failed: {describe_error(e)}")
             return
@@ -187,7 +187,7 @@ class Autopilot(AutopilotCore):
         self.link_errors += 1
         conn, self._conn = self._conn, None
         if conn is not None:
-            _close_quietly(conn)
+            close_quietly(conn)
         if self.reopen.lost(self._clock(), reason):
             self._event("link", f"{self.url} lost ({reason}); reopening")
 
@@ -233,7 +233,7 @@ class Autopilot(AutopilotCore):
                 select.select([fd], [], [], timeout)
             except (OSError, ValueError) as e:
                 if self.serial:
-                    self._lost(_port_reason("select failed", e))
+                    self._lost(port_reason("select failed", e))
                 else:
                     self._link_error(f"select failed: {describe_error(e)}")
                 return 0
@@ -244,7 +244,7 @@ class Autopilot(AutopilotCore):
                 data = conn.recv(_READ_CHUNK)
             except Exception as e:  # pyserial and socket errors alike: the link failed
                 if self.serial:
-                    self._lost(_port_reason("read failed", e))
+                    self._lost(port_reason("read failed", e))
                 else:
                     self._link_error(f"read failed: {describe_error(e)}")
                 break
@@ -352,31 +352,6 @@ class Autopilot(AutopilotCore):
                 return False
             if idle is not None:
                 idle()
-
-
-def _close_quietly(conn: Any) -> None:
-    """Close a pymavlink connection; a dead port's close must not fail."""
-    try:
-        conn.close()
-    except Exception:  # noqa: BLE001  # the device is gone already: nothing to report
-        pass
-
-
-def _port_reason(what: str, e: BaseException) -> str:
-    """Why a serial port failed, short: "read failed: Input/output error".
-
-    pyserial wraps the OS error in text of its own ("read failed: [Errno 5] ..."), and
-    reports a tty at end of file (the USB device went away) as "device reports readiness
-    to read but returned no data (device disconnected or multiple access on port?)".
-    """
-    cause = e.__cause__ or e.__context__
-    if isinstance(e, OSError) and isinstance(e.errno, int) and e.errno > 0:
-        return f"{what}: {os.strerror(e.errno)}"
-    if isinstance(cause, OSError) and isinstance(cause.errno, int) and cause.errno > 0:
-        return f"{what}: {os.strerror(cause.errno)}"
-    if "returned no data" in str(e):
-        return f"{what}: end of file, device disconnected"
-    return f"{what}: {describe_error(e)}"
 
 
 class Px4Autopilot(Autopilot, Px4Core):

@@ -49,6 +49,28 @@ def listing(root: Path, mtimes: bool = True) -> Listing:
     return out
 
 
+def dji_app_key(directory: Path, text: str | None = None, mode: int = 0o600) -> Path:
+    """A DJI app key file: the simulated M100's test key (or `text`), mode `mode`."""
+    from fieldkit.vehicle.sim.dji import TEST_APP_KEY
+
+    path = directory / "dji-app-key.txt"
+    path.write_text((TEST_APP_KEY if text is None else text) + "\n")
+    path.chmod(mode)
+    return path
+
+
+def m100(key: Path, *more: str | Path) -> tuple[str, ...]:
+    """The options of an M100 deployment: the test app id, the key file `key`."""
+    from fieldkit.vehicle.sim.dji import TEST_APP_ID
+
+    return ("--profile", "m100", "--robot-id", "2", "--dji-app-id", str(TEST_APP_ID),
+            "--dji-app-key-file", str(key), *(str(m) for m in more))  # fmt: skip
+
+
+#: A Husky: MCU, XBee and GPS receiver, all on USB adapters (three udev rules).
+HUSKY = ("--profile", "husky", "--robot-id", "3")
+
+
 def deploy(*args: str | Path) -> Result:
     """`fieldkit deploy ARGS` in this process."""
     return runner.invoke(app, ["deploy", *(str(a) for a in args)])

@@ -110,6 +110,7 @@ def test_the_nodes_loader_reads_it(tmp_path: Path, keys: Path) -> None:
         "robot_id": 3,
         "autopilot": "/dev/autopilot",
         "radio": "serial:///dev/xbee?baud=230400&api=2",
+        "gps": "/dev/gps",
         "state_dir": "/var/lib/fieldkit/state",
         "script": "/var/lib/fieldkit/script/task_allocation.bzz",
         "keys": "/etc/fieldkit/keys",

@@ -17,10 +17,24 @@ import bvm
 from fieldkit.deploy import layout
 from fieldkit.deploy.install import SAVED_SUFFIX
 
-from .kit import HELLO, TASKS, deploy, errors, fieldkit, listing
+from .kit import HELLO, HUSKY, TASKS, deploy, dji_app_key, errors, fieldkit, listing, m100
 
 UNIT = "etc/systemd/system/fieldkit-node.service"
 CONFIG = "etc/fieldkit/fieldkit.toml"
+
+
+#: The robots the idempotence and uninstall tests deploy: a Solo (its autopilot on WiFi), a
+#: Husky (MCU, XBee and GPS receiver on USB) and an M100 (its app key installed 0600).
+ROBOTS = ("solo", "husky", "m100")
+
+
+def robot(name: str, tmp_path: Path, *more: str | Path) -> tuple[str | Path, ...]:
+    """The options deploying robot `name` (an M100 with its app key file in tmp_path)."""
+    if name == "m100":
+        return m100(dji_app_key(tmp_path), *more)
+    if name == "husky":
+        return (*HUSKY, *more)
+    return ("--profile", "solo", "--robot-id", "2", *more)
 
 
 def unit_lines(root: Path, key: str, unit: str = UNIT) -> list[str]:
@@ -81,23 +95,33 @@ def test_deploy_installs_the_node_under_root(tmp_path: Path) -> None:
 
 
 def test_serial_links_get_no_network_and_exactly_their_devices(tmp_path: Path) -> None:
-    """A serial autopilot and XBee: PrivateNetwork, AF_UNIX alone, their two devices."""
+    """The Husky: its MCU, its XBee and its GPS receiver, all serial on USB adapters:
+    PrivateNetwork, AF_UNIX alone, their three devices by their udev names."""
     root = tmp_path / "root"
     result = deploy("--profile", "husky", "--root", root, "--robot-id", "1")
     assert result.exit_code == 0, result.output
-    assert unit_lines(root, "DeviceAllow") == ["/dev/autopilot rw", "/dev/xbee rw"]
+    assert unit_lines(root, "DeviceAllow") == ["/dev/autopilot rw", "/dev/xbee rw", "/dev/gps rw"]
     assert unit_lines(root, "PrivateNetwork") == ["yes"]
     assert unit_lines(root, "RestrictAddressFamilies") == ["AF_UNIX"]
-    assert unit_lines(root, "After") == ["dev-autopilot.device", "dev-xbee.device"]
+    assert unit_lines(root, "After") == ["dev-autopilot.device", "dev-xbee.device",
+                                         "dev-gps.device"]  # fmt: skip
     config = tomllib.loads((root / CONFIG).read_text())["node"]
-    assert config["autopilot"] == "/dev/autopilot"
+    assert (config["autopilot"], config["gps"]) == ("/dev/autopilot", "/dev/gps")
     rules = (root / "etc/udev/rules.d/99-fieldkit.rules").read_text().splitlines()
     assert [r for r in rules if not r.startswith("#")] == [
-        'SUBSYSTEM=="tty", ATTRS{idVendor}=="26ac", ATTRS{idProduct}=="0011", '
+        'SUBSYSTEM=="tty", ATTRS{idVendor}=="067b", ATTRS{idProduct}=="2303", '
         'SYMLINK+="autopilot", GROUP="dialout", MODE="0660"',
         'SUBSYSTEM=="tty", ATTRS{idVendor}=="0403", ATTRS{idProduct}=="6015", '
         'SYMLINK+="xbee", GROUP="dialout", MODE="0660"',
+        'SUBSYSTEM=="tty", ATTRS{idVendor}=="1546", ATTRS{idProduct}=="01a8", '
+        'SYMLINK+="gps", GROUP="dialout", MODE="0660"',
     ]
+    # Staged: the robot's GPS is not on this machine either, said like the others.
+    assert (
+        "gps /dev/gps (USB 1546:01a8, the husky profile's [usb] gps): no USB device "
+        "1546:01a8 is plugged in (the robot's devices are not on this staging machine)"
+        in result.stderr
+    )
     # Without a script the node runs what its state directory holds: said so.
     assert "no --script" in result.stderr
 
@@ -107,22 +131,24 @@ def test_command_line_links_replace_the_profiles(tmp_path: Path) -> None:
     rule for an adapter no longer used; a network radio opens the network."""
     root = tmp_path / "root"
     result = deploy("--profile", "husky", "--root", root, "--autopilot", "/dev/ttyS4,115200",
-                    "--radio", "udp://192.168.1.255:24580?peers=8.8.4.4:1")  # fmt: skip
+                    "--radio", "udp://192.168.1.255:24580?peers=8.8.4.4:1",
+                    "--gps", "/dev/ttyS5")  # fmt: skip
     assert result.exit_code == 0, result.output
     config = tomllib.loads((root / CONFIG).read_text())["node"]
     assert config["autopilot"] == "/dev/ttyS4,115200"
     assert config["radio"] == "udp://192.168.1.255:24580?peers=8.8.4.4:1"
-    assert unit_lines(root, "DeviceAllow") == ["/dev/ttyS4 rw"]
+    assert unit_lines(root, "DeviceAllow") == ["/dev/ttyS4 rw", "/dev/ttyS5 rw"]
     (allow,) = unit_lines(root, "IPAddressAllow")
     assert "192.168.0.0/16" in allow.split() and "8.8.4.4" in allow.split()
-    # Neither of the profile's USB adapters is used: no udev rule at all.
+    # None of the profile's USB adapters is used: no udev rule at all.
     assert not (root / "etc/udev/rules.d/99-fieldkit.rules").exists()
 
 
-def test_deploy_twice_changes_nothing(tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", ROBOTS)
+def test_deploy_twice_changes_nothing(tmp_path: Path, name: str) -> None:
     """Same options again: not a byte, mode or modification time changes."""
     root = tmp_path / "root"
-    args = ("--profile", "solo", "--root", root, "--script", TASKS, "--robot-id", "2")
+    args = robot(name, tmp_path, "--root", root, "--script", TASKS)
     assert deploy(*args).exit_code == 0
     before = listing(root)
     again = deploy(*args)
@@ -152,14 +178,15 @@ def seed(root: Path) -> None:
     (root / "var/lib/other").mkdir(parents=True)
 
 
-def test_uninstall_leaves_the_tree_as_it_was(tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", ROBOTS)
+def test_uninstall_leaves_the_tree_as_it_was(tmp_path: Path, name: str) -> None:
     """deploy, then --uninstall: the tree as before, but for the state and recordings
     directories (and the parents made for them); --purge removes those too: byte for byte
     the tree before deploy, modification times of files included."""
     root = tmp_path / "root"
     seed(root)
     before = listing(root)
-    args = ("--profile", "solo", "--root", root, "--script", TASKS)
+    args = robot(name, tmp_path, "--root", root, "--script", TASKS)
     assert deploy(*args).exit_code == 0
     result = deploy("--root", root, "--uninstall")
     assert result.exit_code == 0, result.output
@@ -169,14 +196,14 @@ def test_uninstall_leaves_the_tree_as_it_was(tmp_path: Path) -> None:
     assert f"kept {root / 'var/lib/fieldkit'}" in result.stderr
     assert "uninstalled from" in result.stdout
 
-    assert deploy("--profile", "solo", "--root", root, "--script", HELLO).exit_code == 0
+    assert deploy(*robot(name, tmp_path, "--root", root, "--script", HELLO)).exit_code == 0
     purged = deploy("--root", root, "--uninstall", "--purge")
     assert purged.exit_code == 0, purged.output
     assert listing(root) == {**before, "var/log": ("dir", "0755")}  # made by the first deploy
     root2 = tmp_path / "root2"
     seed(root2)
     before2 = listing(root2)
-    assert deploy("--profile", "solo", "--root", root2, "--script", HELLO).exit_code == 0
+    assert deploy(*robot(name, tmp_path, "--root", root2, "--script", HELLO)).exit_code == 0
     assert deploy("--root", root2, "--uninstall", "--purge").exit_code == 0
     assert listing(root2) == before2
 
@@ -239,9 +266,8 @@ def test_dry_run_prints_everything_and_changes_nothing(tmp_path: Path) -> None:
     assert f"file {root / CONFIG} (mode 0644, changed)" in again.stdout
     assert f"file {root / UNIT} (mode 0644, unchanged)" in again.stdout
     # No root needed to look (the robot's devices must be there, as for a deploy: this
-    # machine has none, so the links are a network autopilot and no radio).
-    live = deploy("--profile", "husky", "--robot-id", "1", "--autopilot", "udpin:0.0.0.0:14550",
-                  "--radio", "none", "--dry-run")  # fmt: skip
+    # machine has none, so the links are the Solo's network autopilot and no radio).
+    live = deploy("--profile", "solo", "--robot-id", "1", "--radio", "none", "--dry-run")
     assert live.exit_code == 0, live.output
     for command in (
         "run: systemd-sysusers --replace=/usr/lib/sysusers.d/fieldkit.conf -",
@@ -272,6 +298,104 @@ def test_keys_install_the_robots_two_files_only(tmp_path: Path, keys: Path) -> N
     config = tomllib.loads((root / CONFIG).read_text())["node"]
     assert (config["keys"], config["security"]) == ("/etc/fieldkit/keys", "signed")
     assert not list(root.rglob("operator.key"))
+
+
+def test_an_m100_gets_its_app_key_for_the_service_alone(tmp_path: Path) -> None:
+    """--dji-app-id --dji-app-key-file: the key installed 0600 for the fieldkit user (also at
+    every boot, through tmpfiles.d), named by the config's [dji]; the node's own loader
+    reads it back; the key's digits nowhere but in that file (the manifest has its hash);
+    --uninstall removes it."""
+    import hashlib
+    import json
+
+    from fieldkit.node.config import load_config
+    from fieldkit.vehicle.sim.dji import TEST_APP_ID, TEST_APP_KEY
+
+    root = tmp_path / "root"
+    key = dji_app_key(tmp_path, "  " + TEST_APP_KEY.upper() + "  ")  # as pasted: case, blanks
+    result = deploy(*m100(key, "--root", root, "--script", HELLO))
+    assert result.exit_code == 0, result.output
+    config = tomllib.loads((root / CONFIG).read_text())
+    assert config["dji"] == {"app_id": TEST_APP_ID, "app_key_file": "/etc/fieldkit/dji-app-key"}
+    assert "autopilot" not in config["node"] and "gps" not in config["node"]
+    installed = root / "etc/fieldkit/dji-app-key"
+    assert installed.read_text() == TEST_APP_KEY.upper() + "\n"
+    assert installed.stat().st_mode & 0o777 == 0o600
+    tmpfiles = (root / "usr/lib/tmpfiles.d/fieldkit.conf").read_text().splitlines()
+    assert "z /etc/fieldkit/dji-app-key 0600 fieldkit fieldkit -" in tmpfiles
+    # The node reads it as deployed (the config's path is the robot's: read it from here).
+    here = tmp_path / "fieldkit.toml"
+    here.write_text((root / CONFIG).read_text().replace("/etc/fieldkit/", f"{root}/etc/fieldkit/"))
+    loaded = load_config(here)
+    assert loaded.dji is not None
+    assert (loaded.dji.app_id, loaded.dji.app_key.lower()) == (TEST_APP_ID, TEST_APP_KEY)
+    manifest = json.loads((root / "etc/fieldkit/deploy-manifest.json").read_text())
+    digest = hashlib.sha256(installed.read_bytes()).hexdigest()
+    assert manifest["files"]["/etc/fieldkit/dji-app-key"] == {"mode": "0600", "sha256": [digest]}
+    secret = TEST_APP_KEY.lower()
+    for path in root.rglob("*"):
+        if path.is_file() and path != installed:
+            assert secret not in path.read_text(errors="replace").lower(), path
+    assert secret not in result.output.lower()
+    # The dry run says the file is there and what it holds, never the digits.
+    dry = deploy(*m100(key, "--root", root, "--script", HELLO, "--dry-run"))
+    assert dry.exit_code == 0, dry.output
+    assert f"file {installed} (mode 0600, owner fieldkit, unchanged)" in dry.stdout
+    assert "    <secret: 64 hex digits>" in dry.stdout
+    assert secret not in dry.output.lower()
+    removed = deploy("--root", root, "--uninstall")
+    assert removed.exit_code == 0, removed.output
+    assert f"removed {installed}" in removed.stderr and not installed.exists()
+
+
+def test_the_dry_run_never_shows_a_private_key(tmp_path: Path, keys: Path) -> None:
+    """--keys and --operator-keys: swarm.key and operator.key are said, never shown."""
+    root = tmp_path / "root"
+    result = deploy("--profile", "solo", "--root", root, "--script", TASKS, "--keys", keys,
+                    "--originator", "--operator-keys", keys, "--dry-run")  # fmt: skip
+    assert result.exit_code == 0, result.output
+    for name in ("swarm.key", "operator.key"):
+        body = (keys / name).read_text().strip().splitlines()
+        assert all(line not in result.stdout for line in body if len(line) > 8), name
+    assert result.stdout.count("    <secret: a private key>") == 3  # swarm.key twice
+    assert "-----BEGIN PUBLIC KEY-----" in result.stdout  # operator.pub is no secret
+
+
+def test_a_gps_given_by_its_device(tmp_path: Path) -> None:
+    """--gps DEV: that device in the config and the unit, and no udev rule for the
+    receiver's USB id (the two others keep theirs)."""
+    root = tmp_path / "root"
+    result = deploy(*HUSKY, "--root", root, "--gps", "/dev/ttyUSB2")
+    assert result.exit_code == 0, result.output
+    assert tomllib.loads((root / CONFIG).read_text())["node"]["gps"] == "/dev/ttyUSB2"
+    assert unit_lines(root, "DeviceAllow") == ["/dev/autopilot rw", "/dev/xbee rw",
+                                               "/dev/ttyUSB2 rw"]  # fmt: skip
+    rules = (root / "etc/udev/rules.d/99-fieldkit.rules").read_text()
+    assert 'SYMLINK+="gps"' not in rules and 'SYMLINK+="xbee"' in rules
+    assert "gps --gps /dev/ttyUSB2: no such device (the robot's devices" in result.stderr
+
+
+def test_two_adapters_with_one_usb_id_are_refused(tmp_path: Path) -> None:
+    """A udev rule matches on the USB id: two adapters sharing one cannot be told apart."""
+    from fieldkit.robot.profiles import load_profile
+
+    shipped = load_profile("husky").path
+    assert shipped is not None
+    mine = tmp_path / "mine.toml"
+    mine.write_text(shipped.read_text().replace('gps = "1546:01a8"', 'gps = "067b:2303"'))
+    root = tmp_path / "root"
+    result = deploy("--profile", mine, "--root", root, "--robot-id", "1")
+    assert result.exit_code == 1, result.output
+    (line,) = errors(result.stderr)
+    assert line == (
+        "error: the husky profile's [usb] gives autopilot and gps one USB id, 067b:2303: a "
+        "udev rule cannot tell the two adapters apart"
+    )
+    assert "hint: give one of them by its device (--autopilot or --gps" in result.stderr
+    assert not root.exists()
+    # By its device, the GPS needs no rule: no clash.
+    ok = deploy("--profile", mine, "--root", root, "--robot-id", "1", "--gps", "/dev/ttyS2")
+    assert ok.exit_code == 0, ok.output
 
 
 def test_the_originator_gets_the_update_monitor(tmp_path: Path, keys: Path) -> None:
@@ -440,13 +564,39 @@ BROKEN = "function init() {}\nfunction step() {\n  x = (1 +\n}\n"
         (["--profile", "solo", "--radio", "xbee"], "not a radio URL"),
         (["--profile", "solo", "--keys", "{d}"], "operator.pub: missing"),
         (["--profile", "solo", "--script", "{d}/x.txt"], "a script is a .bzz"),
+        (["--profile", "solo", "--gps", "/dev/ttyUSB1"], "solo profile's GPS is inside its"),
+        (["--profile", "husky", "--gps", "gps.local:2947"], "not a serial device path"),
+        (["--profile", "m100"], "give --dji-app-id and --dji-app-key-file"),
+        (["--profile", "m100", "--dji-app-id", "7"], "(flavour dji), activated with the "
+         "developer's app: give --dji-app-key-file"),  # fmt: skip
+        (["--profile", "m100", "--dji-app-key-file", "{d}/good.key"], "give --dji-app-id"),
+        (["--profile", "solo", "--dji-app-id", "7", "--dji-app-key-file", "{d}/good.key"],
+         "--dji-app-id 7 and --dji-app-key-file {d}/good.key: for a DJI M100 (flavour dji); "
+         "the solo profile's autopilot is ardupilot"),
+        (["--profile", "m100", "--dji-app-id", "0", "--dji-app-key-file", "{d}/good.key"],
+         "--dji-app-id must be 1..4294967295, got 0"),
+        (["--profile", "m100", "--dji-app-id", "7", "--dji-app-key-file", "{d}/short.key"],
+         "short.key: the DJI app key must be 64 hex digits"),
+        (["--profile", "m100", "--dji-app-id", "7", "--dji-app-key-file", "{d}/zzz.key"],
+         "zzz.key: the DJI app key must be hex digits only; character 1 is not one"),
+        (["--profile", "m100", "--dji-app-id", "7", "--dji-app-key-file", "{d}/open.key"],
+         "open.key: readable by others (mode 0644): the app key is a secret"),
+        (["--profile", "m100", "--dji-app-id", "7", "--dji-app-key-file", "{d}/none.key"],
+         "none.key: cannot read: No such file or directory"),
     ],
-)
+)  # fmt: skip
 def test_every_error_writes_nothing(tmp_path: Path, args: list[str], text: str) -> None:
-    """Exit 1, one `error:` line saying what and where, and DIR as it was."""
+    """Exit 1, one `error:` line saying what and where, and DIR as it was; a DJI app key
+    in no message, whatever is wrong."""
+    from fieldkit.vehicle.sim.dji import TEST_APP_KEY
+
     bad = tmp_path / "bad.bzz"
     bad.write_text(BROKEN)
     (tmp_path / "x.txt").write_text("x")
+    for name, key, mode in (("good", TEST_APP_KEY, 0o600), ("open", TEST_APP_KEY, 0o644),
+                            ("short", TEST_APP_KEY[:63], 0o600),
+                            ("zzz", "z" + TEST_APP_KEY[1:], 0o600)):  # fmt: skip
+        dji_app_key(tmp_path, key, mode).rename(tmp_path / f"{name}.key")
     root = tmp_path / "root"
     seed(root)
     before = listing(root)
@@ -454,8 +604,9 @@ def test_every_error_writes_nothing(tmp_path: Path, args: list[str], text: str) 
     result = deploy(*filled, "--root", root)
     assert result.exit_code == 1, result.output
     lines = errors(result.stderr)
-    assert len(lines) == 1 and text in lines[0], result.stderr
+    assert len(lines) == 1 and text.format(d=tmp_path) in lines[0], result.stderr
     assert "Traceback" not in result.output
+    assert TEST_APP_KEY[1:40] not in result.output
     assert listing(root) == before
 
 

@@ -14,14 +14,25 @@ import shutil
 import signal
 from pathlib import Path
 
+import pytest
+
 from fieldkit.deploy.install import CRASH_ENV, Manifest
 
-from .kit import HELLO, TASKS, deploy, errors, fieldkit, listing
+from .kit import HELLO, TASKS, deploy, dji_app_key, errors, fieldkit, listing, m100
 
 #: The two deploys of the upgrade case: the second changes the profile, the script (its
-#: includes go), the robot id, the links and the udev rules, and adds keys.
+#: includes go), the robot id, the links and the udev rules (three: the Husky's MCU, XBee
+#: and GPS receiver), and adds keys.
 FIRST = ("--profile", "solo", "--script", str(TASKS), "--robot-id", "2")
 SECOND = ("--profile", "husky", "--script", str(HELLO), "--robot-id", "3")
+
+
+def first_deploy(name: str, tmp_path: Path) -> tuple[str, ...]:
+    """A first deploy's options: the Husky's (SECOND), or an M100's (its app key too)."""
+    if name == "m100":
+        return m100(dji_app_key(tmp_path), "--script", HELLO)
+    return SECOND
+
 
 #: Where each case is killed: densely at the start (the lock, the manifest written before
 #: any change), then ever more sparsely; points past a deploy's last change let it finish.
@@ -57,19 +68,26 @@ def copies(template: Path | None, tmp_path: Path, points: tuple[int, ...]) -> di
     return roots
 
 
-def test_a_deploy_killed_anywhere_is_repaired_by_the_next(tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", ["husky", "m100"])
+def test_a_deploy_killed_anywhere_is_repaired_by_the_next(tmp_path: Path, name: str) -> None:
     """A first deploy onto an empty root, killed at each point, then deployed again: the
-    tree a deploy never killed makes."""
+    tree a deploy never killed makes (an M100's app key file whole, 0600, or absent)."""
+    args = first_deploy(name, tmp_path)
     reference = tmp_path / "reference"
-    assert deploy(*SECOND, "--root", reference).exit_code == 0
+    assert deploy(*args, "--root", reference).exit_code == 0
     want = listing(reference, mtimes=False)
     roots = copies(None, tmp_path, POINTS)
-    statuses = kill_at_each(POINTS, roots, *SECOND)
+    statuses = kill_at_each(POINTS, roots, *args)
     # Killed at six points or more, and the last point past the end: the points span it.
     assert sum(s == -signal.SIGKILL for s in statuses.values()) >= 6, statuses
     assert statuses[POINTS[-1]] == 0, statuses
+    key = reference / "etc/fieldkit/dji-app-key"
     for step, root in roots.items():
-        again = deploy(*SECOND, "--root", root)
+        for staged in [root / "etc/fieldkit/dji-app-key", *root.rglob(".dji-app-key.*")]:
+            if staged.exists():  # never readable by others, never part-written
+                assert staged.stat().st_mode & 0o077 == 0, f"{staged} at change {step}"
+                assert staged.read_bytes() in (key.read_bytes(), b""), f"at change {step}"
+        again = deploy(*args, "--root", root)
         assert again.exit_code == 0, f"after a kill at change {step}: {again.output}"
         assert listing(root, mtimes=False) == want, f"after a kill at change {step}"
 
@@ -104,9 +122,11 @@ def test_an_upgrade_killed_anywhere_is_repaired_by_the_next(tmp_path: Path, keys
         assert not list(root.rglob("*.fieldkit-tmp"))
 
 
-def test_an_uninstall_killed_anywhere_is_finished_by_the_next(tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", ["solo", "m100"])
+def test_an_uninstall_killed_anywhere_is_finished_by_the_next(tmp_path: Path, name: str) -> None:
     template, reference = tmp_path / "template", tmp_path / "reference"
-    assert deploy(*FIRST, "--root", template).exit_code == 0
+    args = m100(dji_app_key(tmp_path), "--script", TASKS) if name == "m100" else FIRST
+    assert deploy(*args, "--root", template).exit_code == 0
     shutil.copytree(template, reference, symlinks=True)
     assert deploy("--root", reference, "--uninstall", "--purge").exit_code == 0
     want = listing(reference, mtimes=False)

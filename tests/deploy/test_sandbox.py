@@ -21,12 +21,15 @@ import shutil
 import socket
 import subprocess
 import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-from rigs import pty_vehicle
+from rigs import pty_husky, pty_vehicle
 
-from .kit import HELLO, deploy
+from .kit import HELLO, deploy, dji_app_key, m100
 
 #: prctl(PR_SET_MDWE, PR_MDWE_REFUSE_EXEC_GAIN): from linux/prctl.h.
 PR_SET_MDWE = 65
@@ -109,17 +112,52 @@ def test_the_node_flies_under_memory_deny_write_execute(tmp_path: Path, kernel_m
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["ticks"] >= 1
 
 
-def test_the_deployed_files_run_the_node(tmp_path: Path, kernel_mdwe: None) -> None:
+@contextmanager
+def robot_on_ptys(name: str, tmp_path: Path) -> Iterator[tuple[str, ...]]:
+    """A simulated robot on ptys, stepped in real time: yields the deploy options that
+    point the node at it (a Solo's ArduPilot; a Husky's MCU and GPS receiver; an M100's
+    flight controller, with the test app's key file)."""
+    if name == "husky":
+        with pty_husky() as (mcu, gps, _):
+            yield ("--profile", "husky", "--robot-id", "1", "--autopilot", mcu, "--gps", gps)
+        return
+    if name == "m100":
+        from fieldkit.robot.profiles import load_profile
+        from fieldkit.vehicle.pty import open_pty
+        from fieldkit.vehicle.sim.dji_vehicle import SimM100Vehicle
+
+        pty = open_pty()
+        fc = SimM100Vehicle(load_profile("m100"), pty.master, home=(45.5049, -73.6133))
+        stop = threading.Event()
+        thread = threading.Thread(target=fc.run, args=(50.0, stop), daemon=True)
+        thread.start()
+        try:
+            options = list(m100(dji_app_key(tmp_path), "--autopilot", pty.slave_path))
+            options[options.index("--robot-id") + 1] = "1"  # the robot the test expects
+            yield tuple(options)
+        finally:
+            stop.set()
+            thread.join()
+            fc.close()
+            pty.close()
+        return
+    with pty_vehicle() as port:
+        yield ("--profile", "solo", "--robot-id", "1", "--autopilot", port)
+
+
+@pytest.mark.parametrize("name", ["solo", "husky", "m100"])
+def test_the_deployed_files_run_the_node(tmp_path: Path, kernel_mdwe: None, name: str) -> None:
     """What deploy staged, where the robot has it, run by its unit's ExecStart= under the
     notify protocol, memory-deny-write-execute and the unit's /proc: READY=1, the script
-    seeded into the state directory, the flight recorded under /var/log/fieldkit."""
+    seeded into the state directory, the flight recorded under /var/log/fieldkit. The Husky
+    opens its MCU and its GPS receiver; the M100 is activated with the app key deploy
+    installed in /etc/fieldkit."""
     if not namespaces():
         pytest.skip("needs root and unshare to put the staged files where the robot has them")
     root, work = tmp_path / "root", tmp_path / "overlay-work"
     work.mkdir()
-    with pty_vehicle() as port:
-        result = deploy("--profile", "solo", "--root", root, "--script", HELLO, "--robot-id",
-                        "1", "--autopilot", port, "--radio", "none")  # fmt: skip
+    with robot_on_ptys(name, tmp_path) as options:
+        result = deploy(*options, "--root", root, "--script", HELLO, "--radio", "none")
         assert result.exit_code == 0, result.output
         unit = (root / "etc/systemd/system/fieldkit-node.service").read_text()
         (exec_start,) = [x for x in unit.splitlines() if x.startswith("ExecStart=")]

@@ -90,7 +90,7 @@ def test_a_live_deploy_runs_its_commands_in_order(tmp_path: Path, fakes: dict[st
     root = tmp_path / "root"
     root.mkdir()
     usb = tmp_path / "usb"
-    for n, (vendor, product) in enumerate((("26ac", "0011"), ("0403", "6015"))):
+    for n, (vendor, product) in enumerate((("067b", "2303"), ("0403", "6015"), ("1546", "01a8"))):
         (usb / f"1-{n}").mkdir(parents=True)
         (usb / f"1-{n}" / "idVendor").write_text(vendor)
         (usb / f"1-{n}" / "idProduct").write_text(product)

@@ -20,7 +20,7 @@ from fieldkit.deploy.install import File
 from fieldkit.deploy.plan import Machine, Options, Plan, make_plan
 from fieldkit.deploy.units import device_unit, exec_line, render, sysusers, tmpfiles
 
-from .kit import HELLO, SYSTEM_PYTHON, TASKS
+from .kit import HELLO, SYSTEM_PYTHON, TASKS, dji_app_key
 
 ANALYZE = shutil.which("systemd-analyze")
 needs_analyze = pytest.mark.skipif(
@@ -70,8 +70,10 @@ def exposure(unit: Path) -> float:
 CASES: dict[str, dict[str, Any]] = {
     # the solo: autopilot over WiFi (UDP), XBee on USB
     "udp": dict(profile="solo", script=HELLO),
-    # the husky: both links serial, on USB adapters
+    # the husky: MCU, XBee and GPS receiver, all serial on USB adapters
     "serial": dict(profile="husky", robot_id=1),
+    # the m100: the flight controller on a UART, a USB XBee, the app key file (DJI_KEY)
+    "dji": dict(profile="m100", robot_id=1, dji_app_id=1024768),
     # the spiri: a UART and a USB XBee
     "uart": dict(profile="spiri", robot_id=1),
     # no device at all: a network autopilot, no radio
@@ -79,10 +81,18 @@ CASES: dict[str, dict[str, Any]] = {
 }
 
 
+def case_plan(case: str, tmp_path: Path, python: str = sys.executable) -> Plan:
+    """The plan of case `case` (an M100's with an app key file in tmp_path)."""
+    options = dict(CASES[case])
+    if "dji_app_id" in options:
+        options["dji_app_key_file"] = dji_app_key(tmp_path)
+    return plan(python=python, **options)
+
+
 @needs_analyze
 @pytest.mark.parametrize("case", list(CASES))
 def test_the_node_unit_verifies(tmp_path: Path, case: str) -> None:
-    verify(write_unit(tmp_path, plan(**CASES[case])))
+    verify(write_unit(tmp_path, case_plan(case, tmp_path)))
 
 
 @needs_analyze
@@ -99,6 +109,7 @@ def test_the_update_unit_verifies(tmp_path: Path, keys: Path) -> None:
     [
         ("serial", SYSTEM_PYTHON, 0.6),
         ("uart", SYSTEM_PYTHON, 0.6),
+        ("dji", SYSTEM_PYTHON, 0.6),
         ("udp", SYSTEM_PYTHON, 1.4),
         ("no-devices", SYSTEM_PYTHON, 1.2),
         # fieldkit under /home or /root: ProtectHome=read-only costs 0.1
@@ -111,7 +122,7 @@ def test_the_node_units_exposure_meets_the_goal(
 ) -> None:
     """At most 2.0 (the issue's goal) in every case, and no worse than measured when the
     hardening was written: a line that goes missing shows up here."""
-    p = plan(python=python, **CASES[case])
+    p = case_plan(case, tmp_path, python)
     figure = exposure(write_unit(tmp_path, p))
     with capsys.disabled():
         print(f"\nexposure of fieldkit-node.service, {case}, {python}: {figure}")
@@ -174,11 +185,13 @@ def test_sysusers_and_tmpfiles_make_the_user_and_its_directories(tmp_path: Path)
     uid, gid = int(user[2]), int(user[3])
 
     (root / "usr/lib/tmpfiles.d").mkdir(parents=True)
-    (root / "usr/lib/tmpfiles.d/fieldkit.conf").write_text(tmpfiles(originator=True))
+    (root / "usr/lib/tmpfiles.d/fieldkit.conf").write_text(tmpfiles(True, dji_app_key=True))
     keys = root / "etc/fieldkit/keys"
     keys.mkdir(parents=True)
     (keys / "swarm.key").write_text("x")
     (keys / "swarm.key").chmod(0o644)  # as a careless copy left it
+    (root / "etc/fieldkit/dji-app-key").write_text("x")
+    (root / "etc/fieldkit/dji-app-key").chmod(0o644)
     done = subprocess.run(["systemd-tmpfiles", f"--root={root}", "--create"],
                           capture_output=True, text=True, check=False)  # fmt: skip
     assert done.returncode == 0, done.stderr
@@ -188,6 +201,7 @@ def test_sysusers_and_tmpfiles_make_the_user_and_its_directories(tmp_path: Path)
         ("etc/fieldkit/keys", 0o700),
         ("etc/fieldkit/keys/swarm.key", 0o600),
         ("etc/fieldkit/operator-keys", 0o700),
+        ("etc/fieldkit/dji-app-key", 0o600),
     ):
         st = (root / path).stat()
         assert (st.st_mode & 0o7777, st.st_uid, st.st_gid) == (mode, uid, gid), path
@@ -250,16 +264,31 @@ def test_a_live_deploy_needs_the_devices_plugged_in(tmp_path: Path) -> None:
     with pytest.raises(DeployError, match="no such device") as e:
         make_plan(Options("spiri", radio="none", python=SYSTEM_PYTHON), live)
     assert "/dev/ttyTHS2" in str(e.value)
-    with pytest.raises(DeployError, match="no USB device 26ac:0011 is plugged in"):
+    with pytest.raises(DeployError, match="no USB device 067b:2303 is plugged in"):
         make_plan(Options("husky", python=SYSTEM_PYTHON), live)
-    for n, usb in enumerate(("26ac:0011", "0403:6015")):
+    for n, usb in enumerate(("067b:2303", "0403:6015")):
         device = sysfs / f"1-{n}"
         device.mkdir(parents=True)
         vendor, product = usb.split(":")
         (device / "idVendor").write_text(vendor.upper() + "\n")
         (device / "idProduct").write_text(product + "\n")
+    # The Husky's GPS receiver is a device like the others: missing, it stops the deploy.
+    with pytest.raises(
+        DeployError,
+        match=r"gps /dev/gps \(USB 1546:01a8, the husky profile's "
+        r"\[usb\] gps\): no USB device 1546:01a8 is plugged in",
+    ) as e:
+        make_plan(Options("husky", python=SYSTEM_PYTHON), live)
+    assert "hint: plug the adapter in" in str(e.value)
+    (sysfs / "1-2").mkdir()
+    (sysfs / "1-2" / "idVendor").write_text("1546\n")
+    (sysfs / "1-2" / "idProduct").write_text("01a8\n")
     p = make_plan(Options("husky", python=SYSTEM_PYTHON), live)
-    assert p.node.devices == ("/dev/autopilot", "/dev/xbee")
+    assert p.node.devices == ("/dev/autopilot", "/dev/xbee", "/dev/gps")
+    # Given by its device instead: that device must be there.
+    with pytest.raises(DeployError, match=r"gps --gps /dev/ttyUSB7: no such device") as e:
+        make_plan(Options("husky", gps="/dev/ttyUSB7", python=SYSTEM_PYTHON), live)
+    assert "give --gps with the device it is on" in str(e.value)
     with pytest.raises(DeployError, match="ends in no id"):
         make_plan(Options("husky", python=SYSTEM_PYTHON),
                   Machine(staging=False, hostname=lambda: "robot", usb_devices=sysfs))  # fmt: skip

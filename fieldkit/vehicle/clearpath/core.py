@@ -582,6 +582,14 @@ class HuskyCore:
         if due:
             self._cycle(now)
 
+    def gps_lost(self, reason: str) -> None:
+        """The GPS receiver's device went away: no fix from now on (the base stops driving),
+        until its sentences give one again."""
+        had_fix = self.gps.has_fix
+        self.gps.device_lost(reason)
+        if had_fix:
+            self._update_position()
+
     def _cycle(self, now: float) -> None:
         dt = self.control_interval_s if self._last_cycle is None else now - self._last_cycle
         self._last_cycle = now

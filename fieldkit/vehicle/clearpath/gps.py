@@ -300,6 +300,13 @@ class GpsCore:
         elif self._had_fix:
             self._lose(why)
 
+    def device_lost(self, why: str) -> None:
+        """The receiver's port went away: its fix is lost now, not after the silence timeout."""
+        self._buf.clear()  # the rest of a sentence cut by the pull never comes
+        if self._had_fix:
+            self.fix.fix_type = 1 if self.fix.fix_type else 0
+            self._lose(why)
+
     def _lose(self, why: str) -> None:
         self._had_fix = False
         self.fix_losses += 1

@@ -18,11 +18,14 @@ speeds leave at once). `poll()` reads what both ports hold and ticks the core; n
 the loop. Taps for a recorder: `on_rx` / `on_tx` see the MCU's bytes, `on_gps_rx` the GPS's
 (the receiver is never written to).
 
-A serial device that goes away (a USB adapter unplugged: reads fail) never raises into the
-loop: the port is closed, a "link" event says so once, frames written meanwhile are dropped
+A serial device that goes away (a USB adapter unplugged: reads fail, the tty reads end of
+file) never raises into the loop: each port is a `fieldkit.vehicle.serial_port.ReopeningSerial`
+of its own. It is closed, a "link" event says so once, frames written meanwhile are dropped
 (`bytes_dropped`), and each poll tries the path again every `reopen_interval_s` of the core's
-clock, with a "reopened" event when it is back. The MCU silent meanwhile is a lost heartbeat
-(the supervisor's failsafe), the GPS silent a lost fix.
+clock (`reopen`, `gps_reopen`), with a "reopened" event when it is back. The MCU gone: nothing
+the node sends reaches the base, whose MCU's own watchdog stops the wheels when commands stop
+(the event says so); the silence is a lost heartbeat, the supervisor's failsafe. The GPS gone:
+its fix is lost at once (the base stops driving), and comes back with its sentences.
 """
 
 from __future__ import annotations
@@ -32,11 +35,11 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-import serial
-
 from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.autopilot import AutopilotError, AutopilotState, describe_error
 from fieldkit.vehicle.clearpath.core import HuskyCommand, HuskyCore
+from fieldkit.vehicle.reopen import DEFAULT_INTERVAL_S, ReopenPolicy
+from fieldkit.vehicle.serial_port import PORT_ERRORS, ReopeningSerial
 
 _READ_CHUNK = 4096
 # A single poll reads at most this much per port: a flooded line cannot starve the loop.
@@ -46,42 +49,6 @@ _MAX_READ_PER_POLL = 1 << 16
 class HuskyError(AutopilotError):
     """The Husky link cannot do what was asked (a port that will not open, a wait that ran
     out); the message says what and why."""
-
-
-class _SerialLine:
-    """One serial port of the link, reopened by path after it goes away."""
-
-    def __init__(self, what: str, path: str, baud: int) -> None:
-        self.what = what  # "MCU" or "GPS", for messages
-        self.path = path
-        self.baud = baud
-        self.port: Any | None = None
-        self.down_since: float | None = None
-        self.next_try = 0.0
-        self.closed = False
-        self.open()
-
-    def open(self) -> None:
-        """Open the port (raises what pyserial raises)."""
-        self.port = serial.Serial(self.path, self.baud, timeout=0, write_timeout=0.5)
-
-    def fileno(self) -> int | None:
-        """The descriptor to select() on, or None while down."""
-        if self.port is None:
-            return None
-        try:
-            return int(self.port.fileno())
-        except (OSError, serial.SerialException, ValueError):
-            return None
-
-    def close(self) -> None:
-        """Close the port (a dead one's close must not fail)."""
-        port, self.port = self.port, None
-        if port is not None:
-            try:
-                port.close()
-            except (OSError, serial.SerialException):
-                pass
 
 
 class Husky(HuskyCore):
@@ -94,7 +61,7 @@ class Husky(HuskyCore):
         *,
         baud: int = 115200,
         gps_baud: int = 19200,
-        reopen_interval_s: float = 1.0,
+        reopen_interval_s: float = DEFAULT_INTERVAL_S,
         **options: Any,
     ) -> None:
         """Open both ports; HuskyError (an AutopilotError) if either will not open.
@@ -103,20 +70,56 @@ class Husky(HuskyCore):
         """
         super().__init__(url=mcu, gps_url=gps, **options)
         self.reopen_interval_s = reopen_interval_s
-        self.bytes_dropped = 0  # written while the MCU's port was gone
         #: Taps on the bytes as they cross the ports (a recorder): MCU in, MCU out, GPS in.
         self.on_rx: Callable[[bytes], None] | None = None
         self.on_tx: Callable[[bytes], None] | None = None
         self.on_gps_rx: Callable[[bytes], None] | None = None
         try:
-            self._mcu = _SerialLine("MCU", mcu, baud)
-        except (serial.SerialException, OSError, ValueError) as e:
+            self._mcu = self._line(mcu, baud, write_timeout=0.5)
+        except PORT_ERRORS as e:
             raise HuskyError(f"cannot open the Husky MCU port {mcu}: {describe_error(e)}") from e
         try:
-            self._gps = _SerialLine("GPS", gps, gps_baud)
-        except (serial.SerialException, OSError, ValueError) as e:
+            self._gps = self._line(gps, gps_baud, write_timeout=0)
+        except PORT_ERRORS as e:
             self._mcu.close()
             raise HuskyError(f"cannot open the GPS port {gps}: {describe_error(e)}") from e
+        self._mcu.on_lost = self._mcu_lost
+        self._mcu.on_back = lambda down: self._event(
+            "reopened", f"MCU port {mcu} back after {down:g} s"
+        )
+        self._gps.on_lost = self._gps_lost
+        self._gps.on_back = lambda down: self._event(
+            "reopened", f"GPS port {gps} back after {down:g} s"
+        )
+
+    def _line(self, path: str, baud: int, *, write_timeout: float) -> ReopeningSerial:
+        """One of the two ports, reopened on the core's clock; each failure a line error."""
+        line = ReopeningSerial(
+            path,
+            baud,
+            clock=self._clock,
+            reopen_interval_s=self.reopen_interval_s,
+            write_timeout=write_timeout,
+        )
+        line.on_error = self._link_error
+        return line
+
+    def _mcu_lost(self, reason: str) -> None:
+        self.link_errors += 1
+        self._event(
+            "link",
+            f"MCU port {self._mcu.path} lost ({reason}); reopening: nothing reaches the base "
+            "meanwhile, its MCU's watchdog stops the wheels",
+        )
+
+    def _gps_lost(self, reason: str) -> None:
+        self.link_errors += 1
+        self._event(
+            "link",
+            f"GPS port {self._gps.path} lost ({reason}); reopening: no fix meanwhile, the "
+            "base stops",
+        )
+        self.gps_lost(f"port lost: {reason}")
 
     @classmethod
     def from_profile(
@@ -143,9 +146,8 @@ class Husky(HuskyCore):
     def close(self) -> None:
         """Close both ports; pending commands are cancelled."""
         self.cancel_all("link closed")
-        for line in (self._mcu, self._gps):
-            line.closed = True
-            line.close()
+        self._mcu.close()
+        self._gps.close()
 
     def __enter__(self) -> Husky:
         """Use as a context manager: closed on exit."""
@@ -162,21 +164,28 @@ class Husky(HuskyCore):
     @property
     def link_down(self) -> bool:
         """Whether the MCU's or the GPS's device is lost and not reopened yet."""
-        return self._mcu.port is None or self._gps.port is None
+        return self._mcu.down or self._gps.down
+
+    @property
+    def reopen(self) -> ReopenPolicy:
+        """The MCU's device outages: down now, how many, seconds down."""
+        return self._mcu.reopen
+
+    @property
+    def gps_reopen(self) -> ReopenPolicy:
+        """The GPS receiver's device outages."""
+        return self._gps.reopen
+
+    @property
+    def bytes_dropped(self) -> int:
+        """Bytes for the MCU never written: its device was gone."""
+        return self._mcu.bytes_dropped
 
     def write(self, buf: bytes | bytearray) -> None:
         """Send a frame to the MCU now; a dead port costs a counter, not the loop."""
-        port = self._mcu.port
-        if port is None:
-            self.bytes_dropped += len(buf)
-            return
         data = bytes(buf)
-        try:
-            port.write(data)
-        except (serial.SerialException, OSError) as e:
-            self._lost(self._mcu, f"write failed: {describe_error(e)}")
-            self.bytes_dropped += len(buf)
-            return
+        if not self._mcu.write_all(data):
+            return  # gone (now or before): dropped and counted by the port
         self.bytes_sent += len(data)
         if self.on_tx is not None:
             self.on_tx(data)
@@ -187,8 +196,7 @@ class Husky(HuskyCore):
         """Read both ports and handle what they hold, then tick the core; waits up to
         `timeout` for a first byte (0: not at all). Returns the good frames and sentences."""
         for line in (self._mcu, self._gps):
-            if line.port is None:
-                self._reopen(line)
+            line.try_reopen()
         fds = [fd for fd in (self._mcu.fileno(), self._gps.fileno()) if fd is not None]
         if timeout > 0:
             if fds:
@@ -202,15 +210,11 @@ class Husky(HuskyCore):
         self.tick()
         return handled
 
-    def _read(self, line: _SerialLine) -> int:
+    def _read(self, line: ReopeningSerial) -> int:
         handled = 0
         total = 0
-        while total < _MAX_READ_PER_POLL and line.port is not None:
-            try:
-                data = bytes(line.port.read(_READ_CHUNK))
-            except (serial.SerialException, OSError) as e:
-                self._lost(line, f"read failed: {describe_error(e)}")
-                break
+        while total < _MAX_READ_PER_POLL:
+            data = line.read(_READ_CHUNK)  # a failure takes the line down: b""
             if not data:
                 break
             total += len(data)
@@ -223,28 +227,6 @@ class Husky(HuskyCore):
                     self.on_gps_rx(data)
                 handled += self.receive_gps(data)
         return handled
-
-    def _lost(self, line: _SerialLine, reason: str) -> None:
-        self.link_errors += 1
-        line.close()
-        now = self._clock()
-        if line.down_since is None:
-            line.down_since = now
-            self._event("link", f"{line.what} port {line.path} lost ({reason}); reopening")
-        line.next_try = now + self.reopen_interval_s
-
-    def _reopen(self, line: _SerialLine) -> None:
-        now = self._clock()
-        if line.closed or now < line.next_try:
-            return
-        try:
-            line.open()
-        except (serial.SerialException, OSError, ValueError):
-            line.next_try = now + self.reopen_interval_s
-            return
-        since = line.down_since if line.down_since is not None else now
-        line.down_since = None
-        self._event("reopened", f"{line.what} port {line.path} back after {now - since:.1f} s")
 
     # ------------------------------------------------------------------ blocking helpers
 

@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import logging
 
+from fieldkit.node.health import LinkHealth, policy_health
 from fieldkit.robot import geo
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import ON_GROUND
 from fieldkit.robot.vehicle import Telemetry
 from fieldkit.vehicle.clearpath.core import HuskyCore
+from fieldkit.vehicle.reopen import ReopenPolicy
 
 _log = logging.getLogger("fieldkit.node")
 
@@ -26,7 +28,9 @@ class HuskyPort:
         self.home = home
 
     def poll(self) -> None:
-        """Read both ports, run the control cycle, log what happened."""
+        """Read both ports, run the control cycle, log what happened: a line error or a lost
+        device ("link") as a warning (`husky: MCU port /dev/husky lost (...); reopening...`),
+        the rest (its return included) as information."""
         poll = getattr(self.link, "poll", None)
         if poll is not None:
             poll()
@@ -34,7 +38,8 @@ class HuskyPort:
             self.link.tick()
         for event in self.link.drain_events():
             text = event.text
-            _log.info("%s", text if text.startswith(("husky", "MCU", "gps")) else f"husky: {text}")
+            level = logging.WARNING if event.kind == "link" else logging.INFO
+            _log.log(level, "%s", text if text.startswith(("husky", "gps")) else f"husky: {text}")
 
     def telemetry(self) -> Telemetry:
         """The latest state; the last known position (or home) while none is known."""
@@ -71,6 +76,19 @@ class HuskyPort:
             link.arm()
         elif kind == "disarm":
             link.disarm()
+
+    def link_health(self, now: float) -> LinkHealth:
+        """The devices' losses at `now`: the MCU's and the GPS's ports count as the
+        autopilot's (down while either is, their outages added up); a core polled by the
+        caller, without ports, reports none."""
+        policies = [
+            p
+            for p in (getattr(self.link, "reopen", None), getattr(self.link, "gps_reopen", None))
+            if isinstance(p, ReopenPolicy)
+        ]
+        if not policies:
+            return LinkHealth()
+        return policy_health(now, int(getattr(self.link, "bytes_dropped", 0)), *policies)
 
     def counters(self) -> tuple[int, int]:
         """(good MCU frames and GPS sentences, bad ones)."""

@@ -1071,6 +1071,36 @@ class DjiCore:
             self._link_failing = True
             self._event("link", f"{self.url}: {text}")
 
+    def connection_lost(self, reason: str) -> None:
+        """The transport's device vanished (a loose cable): a "link" event, once per outage.
+
+        Nothing else changes here: the silence that follows is the heartbeat loss the
+        supervisor acts on, and what is sent meanwhile never arrives.
+        """
+        self.link_errors += 1
+        self._event("link", f"{self.url} lost ({reason}); reopening")
+
+    def connection_made(self, down_s: float) -> None:
+        """The device is back after `down_s` seconds: the session starts over, as at start-up.
+
+        The flight controller may have restarted, or dropped what it had of us: no half
+        frame from before, then get version, activation and the broadcast frequencies at the
+        last rate, and control authority asked for again if the node held it when the line
+        went (never when the pilot has the aircraft: the override rules stand). Orders that
+        need activation wait for it, as at start-up.
+        """
+        self._event("reopened", f"{self.url} back after {down_s:g} s")
+        self._reader.reset()
+        self._link_failing = False
+        regain = self.authority and not self.pilot_override
+        self.activated = False
+        self.authority = False
+        self._update_mode()
+        if self._connect is None and self.activation_error is None:
+            self._start_connect(self._clock())
+        if regain:
+            self.obtain_control()
+
     # ------------------------------------------------------------------ steps
 
     def _obtain_step(self, *, skip_if_held: bool = True) -> _Step:

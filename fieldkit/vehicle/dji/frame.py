@@ -288,6 +288,12 @@ class FrameReader:
         """Bytes held back: the start of a frame not complete yet."""
         return len(self._buf)
 
+    def reset(self) -> None:
+        """Forget a partial frame: the line was reopened and its rest will never come (the
+        next bytes are another frame's, which the stale half would swallow). Counters stay."""
+        self._buf.clear()
+        self._in_garbage = False
+
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """The frames completed by `data`, in order."""
         out: list[Frame] = []

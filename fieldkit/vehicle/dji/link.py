@@ -22,22 +22,30 @@ same lock as everything else, so the rate holds whatever the loop's. `stream_pau
 node's "a tick is running") holds the thread back during a tick, so that its sends fall
 between ticks, never among a tick's own writes; `on_stream` tells a recorder the clock time
 of each, and a replay (no thread) sends them again at those times with `stream_at`.
+
+A serial device that goes away (a loose cable: reads fail with EIO, the tty reads end of
+file) never raises into the loop (`fieldkit.vehicle.serial_port.ReopeningSerial`): the port
+is closed, a "link" event says `/dev/m100 lost (read failed: Input/output error); reopening`
+once, what would be written meanwhile is dropped (`bytes_dropped`), and each poll tries the
+path again at `ReopenPolicy`'s pace (`reopen`). The silence is a heartbeat loss to the
+supervisor. When the path opens again, a "reopened" event says `/dev/m100 back after N s`
+and the session starts over as at start-up (`DjiCore.connection_made`: activation, the
+broadcast rate, control authority if the node held it and the pilot has not taken over).
 """
 
 from __future__ import annotations
 
-import os
 import select
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
-import serial
-
 from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.autopilot import AutopilotState, Event, describe_error
 from fieldkit.vehicle.dji.core import DjiCommand, DjiCore, DjiError
+from fieldkit.vehicle.reopen import DEFAULT_INTERVAL_S, ReopenPolicy
+from fieldkit.vehicle.serial_port import PORT_ERRORS, ReopeningSerial
 
 _READ_CHUNK = 4096
 _MAX_READ_PER_POLL = 1 << 16
@@ -62,6 +70,7 @@ class DjiLink:
         stream_thread: bool = False,
         stream_paused: Callable[[], bool] | None = None,
         release_on_close: bool = True,
+        reopen_interval_s: float = DEFAULT_INTERVAL_S,
         **options: Any,
     ) -> None:
         """Open `url` (a serial device or pyserial URL) at `baud`; raises DjiError if it fails.
@@ -69,7 +78,8 @@ class DjiLink:
         `app_id` and `app_key` are the developer's (from the node's config); `profile` and
         the other options are `DjiCore`'s. `stream_thread` sends the movement stream from a
         thread at the control rate, except while `stream_paused()` is true;
-        `release_on_close` gives control authority back when the link is closed.
+        `release_on_close` gives control authority back when the link is closed. A device
+        lost later is tried again every `reopen_interval_s` seconds of `clock`.
         """
         self.core = DjiCore(
             app_id=app_id, app_key=app_key, url=url, profile=profile, clock=clock, **options
@@ -77,15 +87,14 @@ class DjiLink:
         self.url = url
         self._clock = clock
         try:
-            self._port = serial.serial_for_url(url, baudrate=baud, timeout=0)
-        except (serial.SerialException, OSError, ValueError) as e:
+            self._line = ReopeningSerial(
+                url, baud, clock=clock, reopen_interval_s=reopen_interval_s, write_timeout=None
+            )
+        except PORT_ERRORS as e:
             raise DjiError(f"cannot open the DJI link {url}: {describe_error(e)}") from e
-        fd: int | None
-        try:
-            fd = self._port.fileno()
-        except Exception:  # URL handlers (loop://, socket://) may have none
-            fd = None
-        self._fd = fd
+        self._line.on_lost = self.core.connection_lost
+        self._line.on_back = self.core.connection_made
+        self._line.on_error = self.core.link_error
         #: Taps on the bytes as they cross the port (a recorder): read, and written.
         self.on_rx: Callable[[bytes], None] | None = None
         self.on_tx: Callable[[bytes], None] | None = None
@@ -93,7 +102,7 @@ class DjiLink:
         self.on_stream: Callable[[float], None] | None = None
         self.stream_paused = stream_paused
         self.bytes_written = 0
-        self.bytes_dropped = 0
+        self._backlog_dropped = 0  # unwritten past MAX_TX_BACKLOG
         self.release_on_close = release_on_close
         self._tx = bytearray()
         self._lock = threading.RLock()
@@ -163,8 +172,23 @@ class DjiLink:
             self.core.set_time_state(state)
 
     def fileno(self) -> int | None:
-        """The descriptor to select() on (None for a port without one)."""
-        return self._fd
+        """The descriptor to select() on (None for a port without one, or while down)."""
+        return self._line.fileno()
+
+    @property
+    def reopen(self) -> ReopenPolicy:
+        """The serial device's outages: down now, how many, seconds down (the node reads it)."""
+        return self._line.reopen
+
+    @property
+    def link_down(self) -> bool:
+        """Whether the serial device is lost and not reopened yet."""
+        return self._line.down
+
+    @property
+    def bytes_dropped(self) -> int:
+        """Bytes never written: the device was gone, or the backlog overflowed."""
+        return self._line.bytes_dropped + self._backlog_dropped
 
     # ------------------------------------------------------------------ the loop
 
@@ -174,12 +198,18 @@ class DjiLink:
         Waits up to `timeout` seconds for the first byte (0: not at all). Returns the good
         frames handled.
         """
-        if timeout > 0 and self._fd is not None:
+        fd = self._line.fileno()
+        if timeout > 0 and fd is not None:
             try:
-                select.select([self._fd], [], [], timeout)
+                select.select([fd], [], [], timeout)
             except (OSError, ValueError) as e:
-                self.core.link_error(f"select failed: {describe_error(e)}")
+                with self._lock:
+                    self._line.failed("select failed", e)
+        elif timeout > 0 and self._line.down:
+            time.sleep(timeout)  # nothing to select() on: wait as select() would
         with self._lock:
+            if self._line.try_reopen():
+                self._tx.clear()  # the rest of a frame the old line did not take: garbage now
             n = self._read()
             self.core.tick()
             self._flush()
@@ -189,11 +219,7 @@ class DjiLink:
         handled = 0
         total = 0
         while total < _MAX_READ_PER_POLL:
-            try:
-                data = self._port.read(_READ_CHUNK)
-            except Exception as e:  # pyserial's errors and the OS's: the link failed
-                self.core.link_error(f"read failed: {describe_error(e)}")
-                break
+            data = self._line.read(_READ_CHUNK)  # a failure takes the line down: b""
             if not data:
                 break
             total += len(data)
@@ -211,20 +237,14 @@ class DjiLink:
             self._tx += data
         if not self._tx:
             return
-        try:
-            if self._fd is not None:
-                n = os.write(self._fd, self._tx)
-            else:
-                n = self._port.write(bytes(self._tx)) or 0
-        except (BlockingIOError, InterruptedError):
-            n = 0
-        except Exception as e:  # a dead port costs a counter, not the loop
-            self.core.link_error(f"write failed: {describe_error(e)}")
-            n = 0
+        n = self._line.write_some(self._tx)  # a dead port costs a counter, not the loop
+        if self._line.port is None:
+            self._tx.clear()  # gone (dropped and counted by the line): a cut frame is garbage
+            return
         self.bytes_written += n
         del self._tx[:n]
         if len(self._tx) > MAX_TX_BACKLOG:
-            self.bytes_dropped += len(self._tx)
+            self._backlog_dropped += len(self._tx)
             self._tx.clear()
             self.core.link_error(
                 f"{MAX_TX_BACKLOG} bytes unwritten: the flight controller is not reading "
@@ -455,10 +475,7 @@ class DjiLink:
                 self.poll(0.05)
         with self._lock:
             self.core.cancel_all("link closed")
-            try:
-                self._port.close()
-            except Exception:  # closing a dead port must not fail
-                pass
+            self._line.close()  # a dead port's close does not fail; a lost one stays closed
 
     def __enter__(self) -> DjiLink:
         """Use as a context manager: closed on exit."""

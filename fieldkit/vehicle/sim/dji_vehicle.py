@@ -79,16 +79,28 @@ class SimM100Vehicle(SimM100):
         `close()`) or a serial device path opened at `baud`. The other options are
         `SimM100`'s."""
         super().__init__(profile, **options)
+        self.line = self._open(device, baud)
+        self.device_name = device if isinstance(device, str) else f"fd {device}"
+
+    @staticmethod
+    def _open(device: str | int, baud: int) -> _Line:
         if isinstance(device, int):
-            self.line = _Line(device)
-            self.device_name = f"fd {device}"
-        else:
-            try:
-                port = serial.Serial(device, baud, timeout=0, write_timeout=0)
-            except (serial.SerialException, OSError, ValueError) as e:
-                raise SimM100Error(f"cannot open port {device}: {describe_error(e)}") from e
-            self.line = _Line(port.fileno(), port)
-            self.device_name = device
+            return _Line(device)
+        try:
+            port = serial.Serial(device, baud, timeout=0, write_timeout=0)
+        except (serial.SerialException, OSError, ValueError) as e:
+            raise SimM100Error(f"cannot open port {device}: {describe_error(e)}") from e
+        return _Line(port.fileno(), port)
+
+    def attach(self, device: str | int, *, baud: int = 230400) -> None:
+        """Move to another line, as `device` in the constructor: the same flight controller
+        (flying, activated, holding what authority it had) on a new cable. The old line is
+        closed as `close()` closes it."""
+        line = self._open(device, baud)
+        self.line.close()
+        self.line = line
+        self._reader.reset()  # the rest of a frame cut by the pull never comes
+        self.device_name = device if isinstance(device, str) else f"fd {device}"
 
     def step(self, dt: float) -> None:
         """Service the line (no waiting), advance the physics by `dt`, send what is due."""

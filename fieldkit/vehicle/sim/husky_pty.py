@@ -102,6 +102,27 @@ class SimHuskyPorts(SimHusky):
         self.mcu.sink = self.mcu_port.write
         self.gps.sink = self.gps_port.write
 
+    def attach(
+        self,
+        *,
+        mcu: str | int | None = None,
+        gps: str | int | None = None,
+        baud: int = 115200,
+        gps_baud: int = 19200,
+    ) -> None:
+        """Move the MCU or the GPS (or both) to another line, as in the constructor: the same
+        machine, still driving, on a new cable. The old line is closed as `close()` does."""
+        if mcu is not None:
+            port = _Port(mcu, baud)
+            self.mcu_port.close()
+            self.mcu_port = port
+            self.mcu.sink = port.write
+        if gps is not None:
+            port = _Port(gps, gps_baud)
+            self.gps_port.close()
+            self.gps_port = port
+            self.gps.sink = port.write
+
     def step(self, dt: float) -> None:
         """Serve both lines (no waiting), then advance by `dt` and send what is due."""
         self.service()
