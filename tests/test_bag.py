@@ -87,6 +87,8 @@ def test_every_topic_round_trips(tmp_path: Path, name: str) -> None:
         # Every whole frame of the autopilot's reads, however they were split and noised.
         B.TOPIC_MAVLINK_FROM: sum(len(sample.frames(k)) for k in range(30)),
         B.TOPIC_MAVLINK_TO: 30,
+        B.TOPIC_GPS_RX: 0,  # a MAVLink flight's: declared, empty
+        B.TOPIC_STREAM: 0,
         B.TOPIC_OUTBOX: 0,  # an originator's alone
     }
     assert {t.name: t.type for t in r.topics()} == B.TOPIC_TYPES
@@ -189,6 +191,7 @@ def test_the_mavros_type_is_mavros_own() -> None:
         "fieldkit_msgs/msg/Meta",
         "fieldkit_msgs/msg/SerialChunk",
         "fieldkit_msgs/msg/RadioFrame",
+        "fieldkit_msgs/msg/StreamSend",
         "fieldkit_msgs/msg/OutboxPatch",
         TICK,
     }
@@ -213,7 +216,39 @@ def test_ros_tools_read_our_bags_without_our_types(tmp_path: Path, name: str) ->
                 assert bytes(msg.bo) == sample.meta.bo  # type: ignore[attr-defined]
             if conn.topic == B.TOPIC_MAVLINK_FROM and seen[conn.topic] == 1:
                 assert msg.msgid == 33 and msg.sysid == 1  # type: ignore[attr-defined]
-    assert seen[B.TOPIC_TICK] == 12 and set(seen) == set(B.TOPIC_TYPES) - {B.TOPIC_OUTBOX}
+    empty = {B.TOPIC_GPS_RX, B.TOPIC_STREAM, B.TOPIC_OUTBOX}  # none here
+    assert seen[B.TOPIC_TICK] == 12 and set(seen) == set(B.TOPIC_TYPES) - empty
+
+
+@pytest.mark.parametrize("name", STORAGES)
+def test_a_gps_of_its_own_and_stream_sends_round_trip(tmp_path: Path, name: str) -> None:
+    """/gps/rx (a Husky's receiver) and /autopilot/stream (an M100's thread's sends) read
+    back through BagReader, and through rosbags' AnyReader from the embedded definitions."""
+    path = tmp_path / name
+    sample = Sample("gps")
+    with BagWriter(path, fsync=False) as w:
+        w.meta(sample.meta)
+        w.gps_rx(0xFFFFFFFF, b"$GPGGA,start-up*00\r\n", T0_NS)
+        for k in range(5):
+            w.stream_send(k, 10.0 + k * 0.1 - 0.02, T0_NS + k)
+            w.stream_send(k, 10.0 + k * 0.1 - 0.01, T0_NS + k)
+            w.autopilot_rx(k, bytes([k]) * 3, T0_NS + k)
+            w.gps_rx(k, f"$GPRMC,{k}*00\r\n".encode(), T0_NS + k)
+            w.tick(sample.tick_data(k).row)
+    r = BagReader(path)
+    gps = [(c.tick, c.data) for c in r.gps_rx()]
+    assert gps[0] == (0xFFFFFFFF, b"$GPGGA,start-up*00\r\n")
+    assert gps[1:] == [(k, f"$GPRMC,{k}*00\r\n".encode()) for k in range(5)]
+    sends = [(s.tick, s.clock_s) for s in r.stream_sends()]
+    assert sends == [(k, 10.0 + k * 0.1 - d) for k in range(5) for d in (0.02, 0.01)]
+    with AnyReader([path]) as reader:
+        counts: dict[str, int] = {}
+        for conn, _, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+            if conn.topic == B.TOPIC_STREAM and counts[conn.topic] == 1:
+                assert msg.tick == 0 and msg.clock_s == pytest.approx(9.98)  # type: ignore[attr-defined]
+    assert counts[B.TOPIC_GPS_RX] == 6 and counts[B.TOPIC_STREAM] == 10
 
 
 # ------------------------------------------------------------------------------ rotation

@@ -68,7 +68,9 @@ def test_info_of_a_recording(tmp_path: Path) -> None:
     assert topics["/fieldkit/meta"] == (1, "fieldkit_msgs/msg/Meta")
     assert topics["/mavlink/from"][1] == "mavros_msgs/msg/Mavlink"
     assert topics["/fix"] == (30, "sensor_msgs/msg/NavSatFix")
-    assert len(topics) == 11 and topics["/update/outbox"] == (0, "fieldkit_msgs/msg/OutboxPatch")
+    assert topics["/gps/rx"] == (0, "fieldkit_msgs/msg/SerialChunk")  # a Husky's only
+    assert topics["/autopilot/stream"] == (0, "fieldkit_msgs/msg/StreamSend")  # an M100's only
+    assert len(topics) == 13 and topics["/update/outbox"] == (0, "fieldkit_msgs/msg/OutboxPatch")
     assert int(f["messages"]) == sum(n for n, _ in topics.values())
     assert "repaired" not in f
 

@@ -44,8 +44,6 @@ if TYPE_CHECKING:
     from fieldkit.robot.rc import RcCommand
     from fieldkit.update.keys import RobotKeys
     from fieldkit.update.store import Committed, VersionStore
-    from fieldkit.vehicle.core import VehicleCommand
-    from fieldkit.vehicle.links import VehicleLink
 
 
 def robot_id_from(profile: Profile, given: int | None) -> int:
@@ -599,6 +597,7 @@ def _run(
     from fieldkit.node.outbox import Outbox
     from fieldkit.node.recording import NodeRecording
     from fieldkit.node.service import NodeService, ServiceSignals
+    from fieldkit.node.startup import start_vehicle
     from fieldkit.record.bag import BagError
     from fieldkit.vehicle.autopilot import AutopilotError
     from fieldkit.vehicle.links import open_link
@@ -616,6 +615,7 @@ def _run(
                 clock=tick_clock.now,
                 dji_app_id=None if dji is None else dji.app_id,
                 dji_app_key=None if dji is None else dji.app_key,
+                in_tick=lambda: tick_clock.in_tick,
             )
         except AutopilotError as e:
             raise fail(e) from None
@@ -628,16 +628,9 @@ def _run(
             recording.tap(link)
         try:
             try:
-                say(f"autopilot: waiting up to {connect_timeout:g} s for a heartbeat on {link.url}")
-                link.wait_heartbeat(connect_timeout)
-                streams = link.request_streams(prof.node.loop_rate_hz)
-                fix_s = prof.autopilot.gps_fix_timeout_s
-                say(f"autopilot: waiting up to {fix_s:g} s for a GPS fix")
-                link.wait_gps_fix(fix_s)
-                t = link.wait_position(fix_s)
+                t = start_vehicle(link, prof, connect_timeout, say)
             except AutopilotError as e:
                 raise fail(e) from None
-            _settle(link, streams, say)
             assert t.lat is not None and t.lon is not None  # what wait_position waited for
             home = (t.home[0], t.home[1], 0.0) if t.home is not None else (t.lat, t.lon, 0.0)
             until = "until stopped" if seconds is None else f"for {seconds:g} s"
@@ -719,23 +712,6 @@ def _run(
 #: Seconds a restart in place may take beyond its waits for the heartbeat and the fix (the
 #: stream requests' settling, the script's preparation), for the widened watchdog.
 RESTART_MARGIN_S = 30.0
-
-#: Seconds the start-up gives the stream requests to be answered before the loop begins.
-STREAMS_SETTLE_S = 5.0
-
-
-def _settle(link: VehicleLink, streams: VehicleCommand, say: NodeLog) -> None:
-    """Start the loop with no command in flight: the stream requests answered (or given up
-    on), so that a recording's first tick does not depend on how far they had got."""
-    from fieldkit.vehicle.autopilot import AutopilotError
-
-    if not streams.done:
-        try:
-            link.wait_command(streams, STREAMS_SETTLE_S)
-        except AutopilotError as e:
-            say(f"autopilot: stream rates not all confirmed ({e}); going on")
-    if not streams.done:
-        link.cancel_all("the loop begins")
 
 
 @contextmanager

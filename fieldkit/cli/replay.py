@@ -12,6 +12,9 @@ from fieldkit.cli.errors import fail, usage_error
 from fieldkit.cli.options import KeysOption, load_keys
 from fieldkit.cli.output import progress_bar
 
+#: What the autopilot's messages are called in the report, by flavour (MAVLink's otherwise).
+_UNITS = {"dji": "DJI frames", "clearpath": "MCU frames"}
+
 
 def _speed(text: str | None) -> float | None:
     """`--speed X|max`: X times the recorded pace, or as fast as it goes (None)."""
@@ -26,6 +29,37 @@ def _speed(text: str | None) -> float | None:
     if not (math.isfinite(value) and value > 0):
         raise usage_error(f"--speed must be a number > 0 or max, got {text!r}")
     return value
+
+
+def _dji_key(config: Path | None, key_file: Path | None) -> tuple[str | None, int | None]:
+    """An M100's app key and app id for the replay: the node config's [dji] table, or a key
+    file alone (the app id is then the recorded one). Exit 1 for one that cannot be read."""
+    from fieldkit.node.config import NodeConfigError, load_config
+    from fieldkit.vehicle.dji.crypto import AppKeyError, parse_app_key
+
+    if config is not None and key_file is not None:
+        raise usage_error("give one of --config and --dji-app-key-file")
+    if config is not None:
+        try:
+            dji = load_config(config).dji
+        except NodeConfigError as e:
+            raise fail(e) from None
+        return (None, None) if dji is None else (dji.app_key, dji.app_id)
+    if key_file is None:
+        return None, None
+    try:
+        mode = key_file.stat().st_mode
+        key = key_file.read_text(encoding="ascii").strip()
+    except (OSError, UnicodeDecodeError) as e:
+        reason = e.strerror if isinstance(e, OSError) and e.strerror else "not hex text"
+        raise fail(f"{key_file}: cannot read the DJI app key: {reason}") from None
+    if mode & 0o077:
+        raise fail(f"{key_file}: readable by others (mode {mode & 0o777:o}): chmod 600 {key_file}")
+    try:
+        parse_app_key(key)
+    except AppKeyError as e:
+        raise fail(f"{key_file}: {e}") from None
+    return key, None
 
 
 def replay_cmd(
@@ -51,9 +85,21 @@ def replay_cmd(
     include: Annotated[
         list[Path] | None, typer.Option("-I", "--include", help="Extra include directory.")
     ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            "--config", help="The node config the robot ran with (an M100's [dji] app key)."
+        ),
+    ] = None,
+    dji_app_key_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--dji-app-key-file", help="An M100's app key (64 hex digits), instead of --config."
+        ),
+    ] = None,
 ) -> None:
-    """Replay BAG into a fresh node through a loopback serial: --verify compares every MAVLink
-    message, radio frame and script state with the recording (exit 1 at the first
+    """Replay BAG into a fresh node through a loopback serial: --verify compares every message
+    to the vehicle, radio frame and script state with the recording (exit 1 at the first
     divergence); without it, report what the script did."""
     from fieldkit.cli.node import load_program
     from fieldkit.errors import FieldkitError
@@ -67,6 +113,7 @@ def replay_cmd(
     pace = _speed(speed)
     robot_keys = load_keys(keys) if keys is not None else None
     program = load_program(script, [str(d) for d in include or []]) if script else None
+    app_key, app_id = _dji_key(config, dji_app_key_file)
     prof = None
     if profile is not None:
         try:
@@ -89,7 +136,7 @@ def replay_cmd(
             else:
                 report = replay(
                     flight, program=program, profile=prof, keys=robot_keys, verify=verify,
-                    speed=pace, progress=advance,
+                    speed=pace, progress=advance, dji_app_key=app_key, dji_app_id=app_id,
                 )  # fmt: skip
     except ReplayError as e:
         if verify:
@@ -98,8 +145,9 @@ def replay_cmd(
     except FieldkitError as e:
         raise fail(e) from None
     if verify:
+        unit = _UNITS.get(str(flight.meta.get("flavour", "")), "MAVLink messages")
         checked = (
-            f"{report.ticks} ticks, {report.messages} MAVLink messages, "
+            f"{report.ticks} ticks, {report.messages} {unit}, "
             f"{report.frames} radio frames, {report.digests} script states"
         )
         if report.divergence is not None:

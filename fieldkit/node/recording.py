@@ -13,7 +13,7 @@ from pathlib import Path
 
 import bvm
 from fieldkit.node.node import Node
-from fieldkit.node.replay import recording_meta
+from fieldkit.node.replay import recording_meta, tap_link
 from fieldkit.record.bag import BagWriter
 from fieldkit.record.flight import Flight, FlightRecorder, FlightTick
 from fieldkit.record.flight_bag import FlightBag
@@ -111,8 +111,10 @@ class NodeRecording:
         self.writer: BagWriter | None = None
 
     def tap(self, link: VehicleLink) -> None:
-        """Record the link's bytes from now on (the start-up's included)."""
-        link.on_rx, link.on_tx = self.recorder.autopilot_rx, self.recorder.autopilot_tx
+        """Record the link's bytes from now on (the start-up's included): the autopilot's
+        both ways, a separate GPS receiver's (a Clearpath base), and when the link's own
+        thread sends (the DJI movement stream)."""
+        tap_link(link, self.recorder)
 
     def begin(
         self,

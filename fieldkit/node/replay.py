@@ -33,11 +33,21 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import bvm
-from fieldkit.node.autopilot_port import MavlinkAutopilot
+from fieldkit.node.autopilot_port import vehicle_port
 from fieldkit.node.clock import TickClock
 from fieldkit.node.node import Node
 from fieldkit.node.outbox import RecordedOutbox
-from fieldkit.record.compare import Divergence, ReplayError, ReplayReport, compare_tick
+from fieldkit.node.startup import start_vehicle
+from fieldkit.record.compare import (
+    Decoder,
+    Divergence,
+    ReplayError,
+    ReplayReport,
+    clearpath_frames,
+    compare_tick,
+    dji_frames,
+    mavlink_messages,
+)
 from fieldkit.record.flight import Flight, FlightRecorder, FlightTick
 from fieldkit.record.restore import recorded_profile, recorded_security
 from fieldkit.robot.link_security import LinkSecurity
@@ -47,9 +57,9 @@ from fieldkit.robot.rc import RcCommand
 from fieldkit.update.keys import RobotKeys
 from fieldkit.update.release import Release
 from fieldkit.update.store import VersionStore
-from fieldkit.vehicle.link import Autopilot
-from fieldkit.vehicle.links import VehicleLink
-from fieldkit.vehicle.pty import open_pty
+from fieldkit.vehicle.autopilot import AutopilotError
+from fieldkit.vehicle.links import VehicleLink, open_link
+from fieldkit.vehicle.pty import PtyPair, open_pty
 
 #: How long (real seconds) to wait for bytes written into the pty to reach the node's end.
 DELIVERY_TIMEOUT_S = 10.0
@@ -173,6 +183,46 @@ def split_for_line(chunks: Sequence[bytes], limit: int) -> tuple[list[bytes], li
     return [], rest
 
 
+def plan_feeds(lines: Sequence[Sequence[bytes]], limit: int) -> list[list[list[bytes]]]:
+    """One tick's bytes for several loopback lines (`lines[i]`: line i's chunks) as the polls
+    that read them: each poll a list of chunks per line, at most `limit` bytes on each; the
+    last poll is the node's own, the others are read first at the tick's time. A poll reads
+    its lines in order, as the link does (a Husky reads its MCU, then its GPS), so every byte
+    of a line is read after every earlier line's byte of the same tick, as in the flight."""
+    final: list[list[bytes]] = [[] for _ in lines]
+    for i in range(len(lines) - 1, -1, -1):
+        head, final[i] = split_for_line(lines[i], limit)
+        if head:
+            earlier = [list(c) for c in lines[:i]] + [head] + [[] for _ in lines[i + 1 :]]
+            return [*plan_feeds(earlier, limit), final]
+    return [final]
+
+
+def tap_link(link: VehicleLink, recorder: FlightRecorder) -> None:
+    """Point every tap `link` has at `recorder`: the autopilot's bytes both ways, a separate
+    GPS receiver's (a Clearpath base), the times its own thread sent (the DJI stream)."""
+    link.on_rx, link.on_tx = recorder.autopilot_rx, recorder.autopilot_tx
+    if hasattr(link, "on_gps_rx"):
+        link.on_gps_rx = recorder.gps_rx
+    if hasattr(link, "on_stream"):
+        link.on_stream = recorder.stream_sent
+
+
+def _link_meta(node: Node, link: VehicleLink) -> dict[str, object]:
+    """What a replay must know of the link: its flavour; for an M100 the app id and the app
+    key's fingerprint (never the key), and whether a thread streamed movement control."""
+    out: dict[str, object] = {"flavour": node.profile.autopilot.flavour}
+    core = getattr(link, "core", None)
+    fingerprint = getattr(core, "key_fingerprint", None)
+    if out["flavour"] == "dji" and isinstance(fingerprint, str):
+        out["dji"] = {
+            "app_id": int(getattr(core, "app_id", 0)),
+            "key_fingerprint": fingerprint,
+            "stream_thread": getattr(link, "_thread", None) is not None,
+        }
+    return out
+
+
 def recording_meta(
     node: Node,
     link: VehicleLink,
@@ -203,6 +253,7 @@ def recording_meta(
         | ({} if node.outbox is None else {"update_outbox": node.outbox.name})
         | _security_meta(node)
         | _update_meta(node)
+        | _link_meta(node, link)
     )
 
 
@@ -273,16 +324,19 @@ def replay(
     robot_id: int | None = None,
     speed: float | None = None,
     progress: Callable[[int, int], None] | None = None,
+    dji_app_key: str | None = None,
+    dji_app_id: int | None = None,
 ) -> ReplayReport:
     """Replay `flight` into a fresh node and, if `verify`, compare tick by tick.
 
     `program` replaces the recorded script (the regression test of a change), `profile` the
-    recorded profile; `keys` are the robot's, for a signed flight; `speed` paces the ticks
-    at that many times the recorded pace (None: as fast as they go). A flight without node
-    outputs (an autopilot log converted to a bag) replays without `verify`, given a
-    `program` and a `profile`: the node starts once the log has given it a heartbeat and a
-    position, and the report keeps what it did (`replayed`). ReplayError if the flight lacks
-    what this needs."""
+    recorded profile; `keys` are the robot's, for a signed flight; `dji_app_key` is the M100's
+    app key (never in a recording: the node config's), `dji_app_id` its app id if not the
+    recorded one; `speed` paces the ticks at that many times the recorded pace (None: as
+    fast as they go). A flight without node outputs (an autopilot log converted to a bag)
+    replays without `verify`, given a `program` and a `profile`: the node starts once the
+    log has given it a heartbeat and a position, and the report keeps what it did
+    (`replayed`). ReplayError if the flight lacks what this needs."""
     meta = flight.meta
     node_flight = "core_time" in meta
     if verify and not node_flight:
@@ -308,6 +362,7 @@ def replay(
         start = _Start.of(meta) if node_flight else None
     except (KeyError, TypeError, ValueError) as e:
         raise ReplayError(f"the recording's meta lacks what a replay needs: {e}") from None
+    dji = _dji_app(profile, meta, dji_app_key, dji_app_id)
     security, gate = recorded_security(meta, rid, keys)
     first = flight.ticks[0].clock_s if flight.ticks else 0.0
     clock = ReplayClock(before=first if start is None else start.started_s)
@@ -316,7 +371,52 @@ def replay(
         if store is not None and keys is None:
             raise ReplayError("the recorded node took over-the-air updates: give --keys DIR")
         return _replay(flight, profile, program, rid, seed, globals_, commands, start,
-                       security, gate, clock, verify, speed, progress, store, keys)  # fmt: skip
+                       security, gate, clock, verify, speed, progress, store, keys,
+                       dji)  # fmt: skip
+
+
+def _dji_app(
+    profile: Profile, meta: dict[str, object], key: str | None, app_id: int | None
+) -> tuple[int, str] | None:
+    """An M100's (app id, app key) for the replay: the key given (checked against the
+    recorded fingerprint), the recorded app id unless another is given."""
+    if profile.autopilot.flavour != "dji":
+        return None
+    recorded = meta.get("dji")
+    info: dict[str, object] = dict(recorded) if isinstance(recorded, dict) else {}
+    if key is None:
+        raise ReplayError(
+            "an M100's flight replays with its app key, which the recording never holds\n"
+            "hint: give --config FILE (the node config's [dji] table) or --dji-app-key-file FILE"
+        )
+    from fieldkit.vehicle.dji.core import app_key_fingerprint
+    from fieldkit.vehicle.dji.crypto import AppKeyError
+
+    try:
+        fingerprint = app_key_fingerprint(key)
+    except AppKeyError as e:
+        raise ReplayError(f"the DJI app key given: {e}") from None
+    want = info.get("key_fingerprint")
+    if want is not None and want != fingerprint:
+        raise ReplayError(
+            f"the flight's M100 was activated with app key {want}; the key given is "
+            f"{fingerprint}\nhint: give the node config the robot flew with"
+        )
+    ident = app_id if app_id is not None else info.get("app_id")
+    if not isinstance(ident, int) or ident <= 0:
+        raise ReplayError("the recording names no DJI app id\nhint: give --config FILE")
+    return ident, key
+
+
+def _decoder(profile: Profile, dji: tuple[int, str] | None) -> Decoder:
+    """How the autopilot's bytes of this flavour are compared: messages, field by field."""
+    flavour = profile.autopilot.flavour
+    if flavour == "dji":
+        assert dji is not None
+        return dji_frames(dji[1])
+    if flavour == "clearpath":
+        return clearpath_frames
+    return mavlink_messages
 
 
 def _replay(
@@ -336,13 +436,32 @@ def _replay(
     progress: Callable[[int, int], None] | None,
     store: VersionStore | None,
     keys: RobotKeys | None,
+    dji: tuple[int, str] | None,
 ) -> ReplayReport:
     meta = flight.meta
-    pty = open_pty()
+    clearpath = profile.autopilot.flavour == "clearpath"
+    ptys: list[PtyPair] = []
     try:
-        link = Autopilot.from_profile(profile, pty.slave_path, clock=clock.now)
+        # The autopilot's line, and a GPS receiver's of its own (a Clearpath base's).
+        for _ in range(2 if clearpath else 1):
+            ptys.append(open_pty())
         try:
-            run = _Replay(flight, link, _Line(pty.master, pty.slave_fd), clock, verify)
+            link = open_link(
+                profile,
+                ptys[0].slave_path,
+                gps=ptys[1].slave_path if clearpath else None,
+                clock=clock.now,
+                dji_app_id=None if dji is None else dji[0],
+                dji_app_key=None if dji is None else dji[1],
+                dji_stream_thread=False,  # its recorded sends are made again, at their times
+            )
+        except AutopilotError as e:
+            raise ReplayError(f"cannot open the replay's link: {e}") from None
+        if hasattr(link, "release_on_close"):
+            link.release_on_close = False  # a replay has no aircraft to hand back
+        try:
+            lines = [_Line(p.master, p.slave_fd) for p in ptys]
+            run = _Replay(flight, link, lines, clock, verify, _decoder(profile, dji), profile)
             ticks = run.start(start)
             outbox = _recorded_outbox(flight, ticks)
             if outbox is not None and store is None:
@@ -354,7 +473,7 @@ def _replay(
                 profile,
                 program,
                 rid,
-                MavlinkAutopilot(link, run.home),
+                vehicle_port(link, run.home),
                 run.radio if meta.get("radio", True) else None,
                 home=run.home,
                 commands=commands,
@@ -373,7 +492,8 @@ def _replay(
         finally:
             link.close()
     finally:
-        pty.close()
+        for p in ptys:
+            p.close()
 
 
 def _recorded_outbox(flight: Flight, ticks: list[FlightTick]) -> RecordedOutbox | None:
@@ -399,17 +519,30 @@ class _Start:
         return cls((lat, lon, alt), float(meta["started_s"]), dict(meta["core_time"]))  # type: ignore[arg-type, call-overload]
 
 
+class _StartupOver(AutopilotError):
+    """The recorded start-up bytes are all in, and a start-up wait still waits."""
+
+
 class _Replay:
-    """One replay's moving parts: the line, the radio, the recorder of what the node does."""
+    """One replay's moving parts: the lines, the radio, the recorder of what the node does."""
 
     def __init__(
-        self, flight: Flight, link: Autopilot, line: _Line, clock: ReplayClock, verify: bool
+        self,
+        flight: Flight,
+        link: VehicleLink,
+        lines: list[_Line],
+        clock: ReplayClock,
+        verify: bool,
+        decode: Decoder,
+        profile: Profile,
     ) -> None:
         self.flight = flight
+        self.profile = profile
         self.link = link
-        self.line = line
+        self.lines = lines
         self.clock = clock
         self.verify = verify
+        self.decode = decode
         self.radio = ReplayRadio()
         self.done: list[FlightTick] = []
         self.recorder = FlightRecorder(
@@ -417,47 +550,73 @@ class _Replay:
         )
         self.home = (0.0, 0.0, 0.0)
         self.consumed = 0
-        link.on_rx, link.on_tx = self._rx, self.recorder.autopilot_tx
+        tap_link(link, self.recorder)
+        rx, gps = self.recorder.autopilot_rx, self.recorder.gps_rx
+        link.on_rx = lambda data: self._count(rx, data)
+        if hasattr(link, "on_gps_rx"):
+            link.on_gps_rx = lambda data: self._count(gps, data)
 
-    def _rx(self, data: bytes) -> None:
+    def _count(self, tap: Callable[[bytes], None], data: bytes) -> None:
         self.consumed += len(data)
-        self.recorder.autopilot_rx(data)
+        tap(data)
+
+    def _drain(self) -> None:
+        for line in self.lines:
+            line.drain()
+
+    def _feed(self, parts: Sequence[Sequence[bytes]]) -> int:
+        """Write each line's part and wait until the node's ends hold them all; the bytes."""
+        total = 0
+        for line, chunks in zip(self.lines, parts, strict=False):
+            want = line.feed(chunks)
+            if not line.wait_delivered(want):
+                raise ReplayError("the recorded bytes did not come through the loopback serial")
+            total += want
+        return total
 
     def _read_all(self, expected: int, what: str) -> None:
         """Poll the link until it has read `expected` bytes fed since the count was reset."""
         deadline = time.monotonic() + DELIVERY_TIMEOUT_S
         while self.consumed < expected:
             self.link.poll(0.01)
-            self.line.drain()
+            self._drain()
             if time.monotonic() > deadline:
                 raise ReplayError(
                     f"{what}: the recorded autopilot bytes did not come through the loopback "
                     f"serial ({self.consumed} of {expected} in {DELIVERY_TIMEOUT_S:g} s)"
                 )
 
-    def _pre_read(self, tick: FlightTick, head: Sequence[bytes]) -> None:
+    def _poll_fed(self, parts: Sequence[Sequence[bytes]], what: str) -> None:
+        """Feed `parts` (one list of chunks per line) and poll until the link read them."""
+        self.consumed = 0
+        self._read_all(self._feed(parts), what)
+
+    def _pre_read(self, tick: FlightTick, head: Sequence[Sequence[bytes]]) -> None:
         """Poll `head`, a tick's first bytes, through the link at the tick's recorded time:
         what the node's own poll in that tick would have done with them first."""
         self.recorder.started = True  # what it reads and writes now belongs to the tick
         self.clock.set_next(tick.clock_s, tick.unix_ns)
         self.clock.begin_tick()
         try:
-            self.consumed = 0
-            self._read_all(self.line.feed(head), f"tick {tick.tick}")
+            self._poll_fed(head, f"tick {tick.tick}")
         finally:
             self.clock.end_tick()
+
+    def _inputs(self, tick: FlightTick) -> list[list[bytes]]:
+        """A tick's bytes per line: the autopilot's, then a GPS receiver's of its own."""
+        return [tick.autopilot_rx, tick.gps_rx][: len(self.lines)]
 
     def start(self, start: _Start | None) -> list[FlightTick]:
         """Feed the start-up; the ticks left for the node. A recorded node's start-up is its
         own, then its core's clock readings; an autopilot log's runs until the vehicle has
         given a heartbeat and a position (those ticks are not the node's)."""
-        link, line, flight = self.link, self.line, self.flight
-        self.consumed = 0
-        self._read_all(line.feed(flight.startup_rx), "start-up")
+        link, flight = self.link, self.flight
         if start is not None:
+            self._startup(flight)
             link.drain_events()
             link.set_time_state(start.core_time)
             self.home = start.home
+            self.recorder.started = True  # what the link sends from now is the ticks'
             return flight.ticks
         for k, tick in enumerate(flight.ticks):
             t = link.telemetry
@@ -466,14 +625,59 @@ class _Replay:
                 link.drain_events()
                 self.recorder.started = True  # what follows belongs to the node's ticks
                 return flight.ticks[k:]
-            self.consumed = 0
             self.clock.set_next(tick.clock_s, tick.unix_ns)
             self.clock.begin_tick()
             try:
-                self._read_all(line.feed(tick.autopilot_rx), f"tick {tick.tick}")
+                self.consumed = 0
+                fed = zip(self.lines, self._inputs(tick), strict=True)
+                total = sum(line.feed(chunks) for line, chunks in fed)
+                self._read_all(total, f"tick {tick.tick}")
             finally:
                 self.clock.end_tick()
         raise ReplayError("the autopilot log never gives a heartbeat and a GPS position")
+
+    def _startup(self, flight: Flight) -> None:
+        """The node's own start-up (`start_vehicle`) on the recorded start-up bytes: each
+        time one of its waits would wait, the next recorded read of each line comes in. So
+        the link sends what the recorded node sent, in the same order, and a core whose
+        answers match by sequence number (an M100's activation and authority) has sent each
+        request before its answer arrives. Reads left over are fed after it."""
+        queues = [list(flight.startup_rx), list(flight.startup_gps_rx)][: len(self.lines)]
+        fed = [0]  # bytes handed in by the last idle() and not yet read
+
+        def idle() -> None:
+            parts = [[q.pop(0)] if q else [] for q in queues]
+            if not any(parts):
+                raise _StartupOver("the recorded start-up bytes ran out")
+            self.consumed = 0
+            fed[0] = self._feed(parts)
+
+        try:
+            start_vehicle(self.link, self.profile, 30.0, lambda _line: None, idle=idle,
+                          poll_interval=0.0)  # fmt: skip
+        except AutopilotError as e:
+            raise ReplayError(
+                f"start-up: the recorded node's start-up does not replay on its bytes ({e})"
+            ) from None
+        self._read_all(fed[0], "start-up")
+        while any(queues):
+            self._poll_fed([[q.pop(0)] if q else [] for q in queues], "start-up")
+        self.link.poll(0.0)
+        self._drain()
+
+    def _stream(self, tick: FlightTick) -> None:
+        """The frames the recorded link's thread sent before this tick, sent again at their
+        recorded times (the link's own `stream_at`; its thread is off in a replay)."""
+        if not tick.stream_s:
+            return
+        stream_at = getattr(self.link, "stream_at", None)
+        if stream_at is None:
+            raise ReplayError(
+                f"tick {tick.tick}: the recording holds sends of a link thread this "
+                f"flavour's link does not have"
+            )
+        for at in tick.stream_s:
+            stream_at(at)  # none due: the comparison finds the frame missing
 
     def ticks(
         self,
@@ -484,7 +688,7 @@ class _Replay:
     ) -> ReplayReport:
         """Run the node through `ticks`; compare each with the recording if verifying."""
         report = ReplayReport()
-        line, clock = self.line, self.clock
+        clock = self.clock
         wall0 = time.monotonic()
         for n, tick in enumerate(ticks):
             if speed is not None and n:
@@ -492,19 +696,23 @@ class _Replay:
                 if ahead > 0:
                     time.sleep(ahead)
             self.radio.inbox = list(tick.radio_in)
-            head, rest = split_for_line(tick.autopilot_rx, LINE_QUEUE_BYTES)
-            if head:
+            self._stream(tick)
+            *heads, last = plan_feeds(self._inputs(tick), LINE_QUEUE_BYTES)
+            for head in heads:
                 self._pre_read(tick, head)
-            want = line.feed(rest)
-            if not line.wait_delivered(want):
-                raise ReplayError(f"tick {tick.tick}: the recorded autopilot bytes did not arrive")
+            try:
+                self._feed(last)
+            except ReplayError:
+                raise ReplayError(
+                    f"tick {tick.tick}: the recorded autopilot bytes did not arrive"
+                ) from None
             clock.set_next(tick.clock_s, tick.unix_ns)
             node.tick()
-            line.drain()
+            self._drain()
             report.ticks += 1
             mine = self.done.pop()
             if self.verify:
-                report.divergence = compare_tick(tick, mine, report)
+                report.divergence = compare_tick(tick, mine, report, self.decode)
                 if report.divergence is not None:
                     break
             else:
@@ -521,5 +729,8 @@ __all__ = [
     "ReplayError",
     "ReplayRadio",
     "ReplayReport",
+    "plan_feeds",
     "replay",
+    "split_for_line",
+    "tap_link",
 ]

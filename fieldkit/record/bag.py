@@ -59,6 +59,7 @@ from fieldkit.record.types import (
     OUTBOX_PATCH,
     RADIO_FRAME,
     SERIAL_CHUNK,
+    STREAM_SEND,
     TICK,
     typestore,
 )
@@ -68,6 +69,8 @@ TOPIC_META = "/fieldkit/meta"
 TOPIC_TICK = "/fieldkit/tick"
 TOPIC_RX = "/autopilot/rx"
 TOPIC_TX = "/autopilot/tx"
+TOPIC_STREAM = "/autopilot/stream"
+TOPIC_GPS_RX = "/gps/rx"
 TOPIC_MAVLINK_FROM = "/mavlink/from"
 TOPIC_MAVLINK_TO = "/mavlink/to"
 TOPIC_RADIO_IN = "/radio/in"
@@ -88,6 +91,8 @@ TOPIC_TYPES: dict[str, str] = {
     TOPIC_BATTERY: BATTERY_STATE,
     TOPIC_OUTBOX: OUTBOX_PATCH,
     TOPIC_TICK: TICK,
+    TOPIC_GPS_RX: SERIAL_CHUNK,
+    TOPIC_STREAM: STREAM_SEND,
 }
 """Every topic of a fieldkit bag and its type, in the order the writer declares them."""
 
@@ -208,6 +213,15 @@ class SerialChunk:
 
 
 @dataclass(frozen=True)
+class StreamSend:
+    """A frame the link's own thread sent between two polls: its tick, and when (clock_s)."""
+
+    tick: int
+    clock_s: float
+    unix_ns: int
+
+
+@dataclass(frozen=True)
 class RadioFrame:
     """One radio frame in or out: the sender's robot id and the air bytes."""
 
@@ -268,7 +282,17 @@ class TopicInfo:
     count: int
 
 
-Row = Meta | TickRow | SerialChunk | RadioFrame | OutboxPatch | MavlinkFrame | Fix | Battery
+Row = (
+    Meta
+    | TickRow
+    | SerialChunk
+    | StreamSend
+    | RadioFrame
+    | OutboxPatch
+    | MavlinkFrame
+    | Fix
+    | Battery
+)
 """Anything `BagReader.rows` yields."""
 
 
@@ -624,6 +648,15 @@ class BagWriter:
         stamp = self._stamp(unix_ns)
         self._put(TOPIC_TX, self._chunk(tick, data), stamp)
         return self._frames(self._tx, data, TOPIC_MAVLINK_TO, stamp)
+
+    def gps_rx(self, tick: int, data: bytes, unix_ns: int) -> None:
+        """Bytes read from a GPS receiver of its own (a Clearpath base's), on /gps/rx."""
+        self._put(TOPIC_GPS_RX, self._chunk(tick, data), self._stamp(unix_ns))
+
+    def stream_send(self, tick: int, clock_s: float, unix_ns: int) -> None:
+        """A frame the link's thread sent at `clock_s` (its bytes go to `autopilot_tx`)."""
+        msg = self._types[STREAM_SEND](tick=tick, clock_s=float(clock_s))
+        self._put(TOPIC_STREAM, msg, self._stamp(unix_ns))
 
     def radio_in(
         self,
@@ -1227,6 +1260,16 @@ class BagReader:
         """/autopilot/tx: the bytes written to the autopilot."""
         yield from self._serial(TOPIC_TX)
 
+    def gps_rx(self) -> Iterator[SerialChunk]:
+        """/gps/rx: the bytes read from a GPS receiver of its own (none in older bags)."""
+        yield from self._serial(TOPIC_GPS_RX)
+
+    def stream_sends(self) -> Iterator[StreamSend]:
+        """/autopilot/stream: when the link's thread sent a frame (none in older bags)."""
+        for _, row in self.rows(TOPIC_STREAM):
+            assert isinstance(row, StreamSend)
+            yield row
+
     def radio_in(self) -> Iterator[RadioFrame]:
         """/radio/in: the frames the radio returned."""
         yield from self._radio(TOPIC_RADIO_IN)
@@ -1369,8 +1412,10 @@ def _to_row(topic: str, msg: Any, stamp: int) -> Row:
             digest=bytes(msg.digest),
             log=tuple(_text(x) for x in msg.log),
         )
-    if topic in (TOPIC_RX, TOPIC_TX):
+    if topic in (TOPIC_RX, TOPIC_TX, TOPIC_GPS_RX):
         return SerialChunk(int(msg.tick), bytes(msg.data), stamp)
+    if topic == TOPIC_STREAM:
+        return StreamSend(int(msg.tick), float(msg.clock_s), stamp)
     if topic in (TOPIC_RADIO_IN, TOPIC_RADIO_OUT):
         return RadioFrame(
             int(msg.tick), int(msg.sender), bytes(msg.data), stamp,
@@ -1400,6 +1445,7 @@ __all__ = [
     "REQUIRED_TOPICS",
     "TOPIC_BATTERY",
     "TOPIC_FIX",
+    "TOPIC_GPS_RX",
     "TOPIC_MAVLINK_FROM",
     "TOPIC_MAVLINK_TO",
     "TOPIC_META",
@@ -1407,6 +1453,7 @@ __all__ = [
     "TOPIC_RADIO_IN",
     "TOPIC_RADIO_OUT",
     "TOPIC_RX",
+    "TOPIC_STREAM",
     "TOPIC_TICK",
     "TOPIC_TX",
     "TOPIC_TYPES",
@@ -1421,6 +1468,7 @@ __all__ = [
     "RadioFrame",
     "Row",
     "SerialChunk",
+    "StreamSend",
     "TickRow",
     "TopicInfo",
     "mavlink_fields",

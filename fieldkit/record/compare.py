@@ -1,8 +1,10 @@
 """What a replay compares, tick by tick, whatever drove it (a node through a loopback
 serial, or a simulated robot's runtime): the outputs a recording holds against a replay's.
 
-    autopilot   every MAVLink message written, decoded, field by field (NaN equals NaN; the
-                header's sequence number left out: it counts the start-up's writes too)
+    autopilot   every message written, decoded, field by field: MAVLink's (NaN equals NaN;
+                the header's sequence number left out: it counts the start-up's writes
+                too), an M100's OPEN protocol frames (decrypted with the app key; session
+                and sequence number included), a Clearpath MCU's frames
     radio       every frame sent, byte for byte
     order       what the supervisor told the vehicle (kind and numbers)
     state       BVMSTATE, then the script-state digest
@@ -11,7 +13,7 @@ serial, or a simulated robot's runtime): the outputs a recording holds against a
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import all as mavlink2
@@ -43,7 +45,7 @@ class ReplayReport:
     """What a replay verified, and where it diverged (None: identical)."""
 
     ticks: int = 0
-    messages: int = 0  # MAVLink messages to the autopilot compared
+    messages: int = 0  # messages to the autopilot compared (MAVLink's, DJI frames...)
     frames: int = 0  # radio frames compared
     digests: int = 0  # script-state digests compared
     divergence: Divergence | None = None
@@ -51,7 +53,12 @@ class ReplayReport:
     replayed: list[FlightTick] = field(default_factory=list)
 
 
-def _messages(chunks: Sequence[bytes]) -> list[dict[str, object]]:
+#: A byte stream to the autopilot as its messages, each a field dict with its name under
+#: "mavpackettype" (MAVLink's own key), for the comparison.
+Decoder = Callable[[Sequence[bytes]], list[dict[str, object]]]
+
+
+def mavlink_messages(chunks: Sequence[bytes]) -> list[dict[str, object]]:
     """The MAVLink messages in a byte stream, as field dicts (header fields left out: the
     sequence number counts start-up writes too)."""
     parser = mavlink2.MAVLink(None)
@@ -65,6 +72,43 @@ def _messages(chunks: Sequence[bytes]) -> list[dict[str, object]]:
     return out
 
 
+def dji_frames(app_key: str) -> Decoder:
+    """A decoder of the OPEN protocol frames a host sends an M100, decrypted with `app_key`:
+    every header field (session, sequence number, ACK and encryption flags), CMD SET and ID
+    and the value; a frame that does not decrypt is its ciphertext, compared as bytes."""
+    from fieldkit.vehicle.dji.crypto import FrameCipher
+    from fieldkit.vehicle.dji.frame import FrameReader
+
+    cipher = FrameCipher.from_app_key(app_key)
+
+    def decode(chunks: Sequence[bytes]) -> list[dict[str, object]]:
+        reader = FrameReader(cipher)
+        out: list[dict[str, object]] = []
+        for chunk in chunks:
+            for f in reader.feed(chunk):
+                d = f.describe()
+                name = "ACK" if f.ack else f"{f.cmd_set or 0:#04x}/{f.cmd_id or 0:#04x}"
+                out.append({"mavpackettype": name, **d, "readable": f.readable})
+        return out
+
+    return decode
+
+
+def clearpath_frames(chunks: Sequence[bytes]) -> list[dict[str, object]]:
+    """The frames a host sends a Clearpath MCU: type, flags, timestamp, version, payload."""
+    from fieldkit.vehicle.clearpath.frame import FrameReader
+
+    reader = FrameReader()
+    out: list[dict[str, object]] = []
+    for chunk in chunks:
+        for f in reader.feed(chunk):
+            out.append({
+                "mavpackettype": f"{f.type:#06x}", "type": f.type, "flags": f.flags,
+                "timestamp": f.timestamp, "version": f.version, "payload": f.payload.hex(),
+            })  # fmt: skip
+    return out
+
+
 def _same(a: object, b: object) -> bool:
     """Field equality in which a NaN equals a NaN (MAVLink uses NaN for "not set")."""
     if isinstance(a, float) and isinstance(b, float):
@@ -74,10 +118,16 @@ def _same(a: object, b: object) -> bool:
     return a == b
 
 
-def compare_tick(expected: FlightTick, got: FlightTick, report: ReplayReport) -> Divergence | None:
-    """The first difference between a recorded tick and its replay, counting what matched."""
+def compare_tick(
+    expected: FlightTick,
+    got: FlightTick,
+    report: ReplayReport,
+    decode: Decoder = mavlink_messages,
+) -> Divergence | None:
+    """The first difference between a recorded tick and its replay, counting what matched;
+    `decode` reads the autopilot's messages out of the bytes written to it."""
     k = expected.tick
-    want, have = _messages(expected.autopilot_tx), _messages(got.autopilot_tx)
+    want, have = decode(expected.autopilot_tx), decode(got.autopilot_tx)
     for i, (a, b) in enumerate(zip(want, have, strict=False)):
         diff = sorted(f for f in set(a) | set(b) if not _same(a.get(f), b.get(f)))
         if diff:
@@ -120,4 +170,13 @@ def compare_tick(expected: FlightTick, got: FlightTick, report: ReplayReport) ->
     return None
 
 
-__all__ = ["Divergence", "ReplayError", "ReplayReport", "compare_tick"]
+__all__ = [
+    "Decoder",
+    "Divergence",
+    "ReplayError",
+    "ReplayReport",
+    "clearpath_frames",
+    "compare_tick",
+    "dji_frames",
+    "mavlink_messages",
+]

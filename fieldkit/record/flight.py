@@ -7,10 +7,12 @@ A `Flight` is what a recording holds and what a replay needs (docs/recording.md)
     profile_toml  the device profile, as text
     bo, bdb, bpos the script as it ran
     startup_rx/tx the autopilot's bytes before the first tick (heartbeat, streams, GPS fix)
+    startup_gps_rx  a GPS receiver's bytes before the first tick (a base with its own GPS)
     ticks         per tick: its time, the radio frames in and out, the patches read from the
-                  outbox (an originator's), the autopilot's bytes in
-                  and out, the script-state digest, the state, the order, the supervisor's
-                  events, the script's lines, the sensors
+                  outbox (an originator's), the autopilot's bytes in and out, a separate GPS
+                  receiver's bytes in, the times at which the link's own thread sent a frame
+                  (the M100's movement stream), the script-state digest, the state, the
+                  order, the supervisor's events, the script's lines, the sensors
 
 `FlightRecorder` builds one from a node's hooks (`fieldkit.node.node.FlightRecorder`) and the
 autopilot link's byte taps; each finished tick also goes to `on_tick`, so that a bag writer
@@ -63,6 +65,11 @@ class FlightTick:
     outbox: list[bytes] = field(default_factory=list)
     autopilot_rx: list[bytes] = field(default_factory=list)
     autopilot_tx: list[bytes] = field(default_factory=list)
+    #: Bytes read from a GPS receiver on a port of its own (a Clearpath base's), in order.
+    gps_rx: list[bytes] = field(default_factory=list)
+    #: The clock times (s) at which the link's own thread sent a frame before this tick's
+    #: poll (the DJI movement stream); the frames' bytes are in `autopilot_tx`.
+    stream_s: list[float] = field(default_factory=list)
     digest: bytes = b""
     state: str | None = None
     order: tuple[str, tuple[float, ...]] | None = None
@@ -82,6 +89,7 @@ class Flight:
     bpos: bytes = b""
     startup_rx: list[bytes] = field(default_factory=list)
     startup_tx: list[bytes] = field(default_factory=list)
+    startup_gps_rx: list[bytes] = field(default_factory=list)
     ticks: list[FlightTick] = field(default_factory=list)
 
 
@@ -103,8 +111,7 @@ class FlightRecorder:
         self.started = False  # a first tick began: start-up is over
         # Bytes crossing the port between two ticks: they count as the next tick's (a replay
         # feeds a tick's bytes before it runs, so the core sees them in the same order).
-        self._next_rx: list[bytes] = []
-        self._next_tx: list[bytes] = []
+        self._next = FlightTick(0, 0.0, 0)
 
     # the autopilot link's taps
     def autopilot_rx(self, data: bytes) -> None:
@@ -115,22 +122,34 @@ class FlightRecorder:
         """Bytes written to the autopilot."""
         self._bucket(self.flight.startup_tx, "tx").append(bytes(data))
 
+    def gps_rx(self, data: bytes) -> None:
+        """Bytes read from a GPS receiver on its own port (before the first tick: start-up)."""
+        self._bucket(self.flight.startup_gps_rx, "gps").append(bytes(data))
+
+    def stream_sent(self, clock_s: float) -> None:
+        """The link's own thread sent a frame at `clock_s` (its bytes come to `autopilot_tx`).
+        Start-up's are not kept: a replay restores the core's clock readings after it."""
+        if self.current is not None or self.started:
+            (self.current or self._next).stream_s.append(float(clock_s))
+
     def _bucket(self, startup: list[bytes], way: str) -> list[bytes]:
-        cur = self.current
-        if cur is not None:
-            return cur.autopilot_rx if way == "rx" else cur.autopilot_tx
-        if not self.started:
-            return startup
-        return self._next_rx if way == "rx" else self._next_tx
+        t = self.current
+        if t is None:
+            if not self.started:
+                return startup
+            t = self._next
+        return t.autopilot_rx if way == "rx" else t.autopilot_tx if way == "tx" else t.gps_rx
 
     # the node's hooks
     def begin_tick(self, tick: int, clock_s: float, unix_ns: int) -> None:
         """A tick begins."""
         self.started = True
+        n = self._next
         self.current = FlightTick(
-            tick, clock_s, unix_ns, autopilot_rx=self._next_rx, autopilot_tx=self._next_tx
-        )
-        self._next_rx, self._next_tx = [], []
+            tick, clock_s, unix_ns, autopilot_rx=n.autopilot_rx, autopilot_tx=n.autopilot_tx,
+            gps_rx=n.gps_rx, stream_s=n.stream_s,
+        )  # fmt: skip
+        self._next = FlightTick(0, 0.0, 0)
 
     def radio_in(self, sender: int, data: bytes, where: tuple[float, float] | None = None) -> None:
         """A frame the radio handed in (`where` the sender was, if the host knows)."""

@@ -5,7 +5,7 @@ is built (the meta, then the start-up bytes the recorder kept), then `tick(t)` f
 as it ends (`FlightRecorder(..., keep=False, on_tick=bag.tick)`). `read_flight(path)` reads a
 recording back into a Flight for `replay`. The Flight's meta (robot id, seed, home, start
 time, the core's clock readings, security state: nothing secret) travels as the bag's
-`config_json`; the start-up bytes as autopilot chunks of tick STARTUP_TICK.
+`config_json`; the start-up bytes as autopilot (and GPS) chunks of tick STARTUP_TICK.
 """
 
 from __future__ import annotations
@@ -60,6 +60,8 @@ class FlightBag:
             w.autopilot_rx(STARTUP_TICK, chunk, first_ns)
         for chunk in flight.startup_tx:
             w.autopilot_tx(STARTUP_TICK, chunk, first_ns)
+        for chunk in flight.startup_gps_rx:
+            w.gps_rx(STARTUP_TICK, chunk, first_ns)
 
     def tick(self, t: FlightTick) -> None:
         """One tick's inputs and outputs, then its row (the writer flushes there)."""
@@ -72,8 +74,12 @@ class FlightBag:
             w.outbox(t.tick, patch, ns)
         for chunk in t.autopilot_rx:
             w.autopilot_rx(t.tick, chunk, ns)
+        for at in t.stream_s:
+            w.stream_send(t.tick, at, ns)
         for chunk in t.autopilot_tx:
             w.autopilot_tx(t.tick, chunk, ns)
+        for chunk in t.gps_rx:
+            w.gps_rx(t.tick, chunk, ns)
         for data in t.radio_out:
             w.radio_out(t.tick, self.robot_id, data, ns)
         s = t.sensors
@@ -165,6 +171,14 @@ def read_flight(path: Path | str) -> Flight:
             flight.startup_tx.append(chunk.data)
         elif (t := at(chunk.tick, "autopilot bytes")) is not None:
             t.autopilot_tx.append(chunk.data)
+    for chunk in reader.gps_rx():
+        if chunk.tick == STARTUP_TICK:
+            flight.startup_gps_rx.append(chunk.data)
+        elif (t := at(chunk.tick, "GPS bytes")) is not None:
+            t.gps_rx.append(chunk.data)
+    for send in reader.stream_sends():
+        if (t := at(send.tick, "a stream send")) is not None:
+            t.stream_s.append(send.clock_s)
     for frame in reader.radio_in():
         if (t := at(frame.tick, "a radio frame")) is not None:
             t.radio_in.append((frame.sender, frame.data))

@@ -19,6 +19,7 @@ it is as quick on an hour's flight as on a minute's.
 from __future__ import annotations
 
 import datetime as dt
+import tomllib
 
 from fieldkit.record.bag import BagReader
 
@@ -52,6 +53,27 @@ def _storage(r: BagReader) -> str:
     return f"{kind} ({parts})"
 
 
+def _profile(toml: str, config: dict[str, object]) -> str | None:
+    """`husky (flavour clearpath)`: the recorded profile's name and autopilot family (None
+    for a bag without a profile, a tlog's)."""
+    if not toml:
+        return None
+    try:
+        data = tomllib.loads(toml)
+    except tomllib.TOMLDecodeError:
+        return "unreadable profile text"
+    autopilot = data.get("autopilot")
+    flavour = config.get("flavour")
+    if flavour is None and isinstance(autopilot, dict):
+        flavour = autopilot.get("flavour")
+    name = data.get("name", "?")
+    out = f"{name} (flavour {flavour or '?'})"
+    dji = config.get("dji")
+    if isinstance(dji, dict) and dji.get("key_fingerprint"):
+        out += f", DJI app {dji.get('app_id')} key {dji.get('key_fingerprint')}"
+    return out
+
+
 def describe(r: BagReader) -> str:
     """The `bag info` text of an open recording."""
     meta = r.meta
@@ -67,6 +89,9 @@ def describe(r: BagReader) -> str:
             ("end", _when(r.end_ns)),
         ]
     lines += [("messages", str(r.message_count)), ("robot", str(meta.robot_id))]
+    profile = _profile(meta.profile_toml, config)
+    if profile is not None:
+        lines.append(("profile", profile))
     if meta.bo:
         lines.append(("script", f"{meta.script_name or '?'} (sha256 {meta.script_sha256})"))
     else:

@@ -25,11 +25,12 @@ META = "fieldkit_msgs/msg/Meta"
 SERIAL_CHUNK = "fieldkit_msgs/msg/SerialChunk"
 RADIO_FRAME = "fieldkit_msgs/msg/RadioFrame"
 TICK = "fieldkit_msgs/msg/Tick"
+STREAM_SEND = "fieldkit_msgs/msg/StreamSend"
 OUTBOX_PATCH = "fieldkit_msgs/msg/OutboxPatch"
 NAV_SAT_FIX = "sensor_msgs/msg/NavSatFix"
 BATTERY_STATE = "sensor_msgs/msg/BatteryState"
 
-OWN_TYPES = (MAVLINK, META, SERIAL_CHUNK, RADIO_FRAME, TICK, OUTBOX_PATCH)
+OWN_TYPES = (MAVLINK, META, SERIAL_CHUNK, RADIO_FRAME, TICK, OUTBOX_PATCH, STREAM_SEND)
 """The types registered from our `.msg` files."""
 USED_TYPES = (
     *OWN_TYPES,
@@ -93,6 +94,7 @@ __all__ = [
     "OWN_TYPES",
     "RADIO_FRAME",
     "SERIAL_CHUNK",
+    "STREAM_SEND",
     "TICK",
     "USED_TYPES",
     "message_class",

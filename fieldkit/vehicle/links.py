@@ -114,11 +114,15 @@ def open_link(
     gps: str | None = None,
     dji_app_id: int | None = None,
     dji_app_key: str | None = None,
+    dji_stream_thread: bool = True,
+    in_tick: Callable[[], bool] | None = None,
 ) -> VehicleLink:
     """The link of `profile`'s autopilot family on `url` (default: `autopilot.url`).
 
     Flavour "dji" needs the developer's app id and app key (the node's config); the DJI
-    link streams its movement control from a thread at the profile's control rate. A
+    link streams its movement control from a thread at the profile's control rate, held
+    back while `in_tick()` (the node's tick clock is frozen) so that its sends fall between
+    ticks; a replay opens it with `dji_stream_thread=False` and sends them itself. A
     Clearpath base reads its GPS on `gps` (default: the profile's `[gps] port`). Raises
     AutopilotError (the DJI link's DjiError is one) when the link cannot be opened, or for a
     `gps` given to a flavour whose GPS is inside the autopilot.
@@ -147,7 +151,8 @@ def open_link(
             url,
             app_id=dji_app_id,
             app_key=dji_app_key,
-            stream_thread=True,
+            stream_thread=dji_stream_thread,
+            stream_paused=in_tick,
             **options,
         )
     from fieldkit.vehicle.link import Autopilot

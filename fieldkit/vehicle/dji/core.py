@@ -38,6 +38,7 @@ What it does, in the order of a flight (facts: the spec, summarised in docs/vehi
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
 from collections import deque
@@ -57,7 +58,7 @@ from fieldkit.vehicle.autopilot import (
     describe_error,
 )
 from fieldkit.vehicle.dji import messages as M
-from fieldkit.vehicle.dji.crypto import FrameCipher
+from fieldkit.vehicle.dji.crypto import FrameCipher, parse_app_key
 from fieldkit.vehicle.dji.frame import Frame, FrameReader, ack_frame, command_frame
 
 if TYPE_CHECKING:
@@ -227,6 +228,8 @@ class DjiCore:
         s = profile.dji if profile is not None else DjiSettings()
         try:
             self._cipher = FrameCipher.from_app_key(app_key)
+            #: The key's fingerprint (`app_key_fingerprint`), never the key: for a recording.
+            self.key_fingerprint = app_key_fingerprint(app_key)
         except ValueError as e:
             raise DjiError(str(e)) from None
         if not 0 < app_id <= 0xFFFFFFFF:
@@ -428,6 +431,11 @@ class DjiCore:
             "last_message": t.last_message,
             "last_stream": self._last_stream,
             "pending_commands": len(self.pending),
+            # The frame counters: a replay's start-up may send fewer frames than the flight's
+            # (no retries on a frozen clock), and every later frame carries them.
+            "seq": self._seq,
+            "last_seq": {str(k): v for k, v in self._last_seq.items() if v},
+            "task_seq": self._task_seq,
         }
 
     def set_time_state(self, state: dict[str, object]) -> None:
@@ -443,6 +451,16 @@ class DjiCore:
         self.telemetry.last_heartbeat = num("last_heartbeat")
         self.telemetry.last_message = num("last_message")
         self._last_stream = num("last_stream")
+        seq, task_seq, last_seq = state.get("seq"), state.get("task_seq"), state.get("last_seq")
+        if isinstance(seq, int):
+            self._seq = seq & 0xFFFF
+        if isinstance(task_seq, int):
+            self._task_seq = task_seq & 0xFF
+        if isinstance(last_seq, dict):
+            self._last_seq = dict.fromkeys(range(32), 0)
+            for k, v in last_seq.items():
+                if str(k).isdigit() and int(k) < 32 and isinstance(v, int):
+                    self._last_seq[int(k)] = v & 0xFFFF
 
     # ------------------------------------------------------------------ incoming
 
@@ -1437,4 +1455,11 @@ if TYPE_CHECKING:
         return core
 
 
-__all__ = ["DjiCommand", "DjiCore", "DjiError"]
+def app_key_fingerprint(app_key: str) -> str:
+    """16 hex digits naming an app key without revealing it (what a recording keeps): a
+    replay given another key says so before it decodes nothing."""
+    key = parse_app_key(app_key)
+    return hashlib.sha256(b"fieldkit dji app key v1\0" + key).hexdigest()[:16]
+
+
+__all__ = ["DjiCommand", "DjiCore", "DjiError", "app_key_fingerprint"]

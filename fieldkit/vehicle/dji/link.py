@@ -18,7 +18,10 @@ start-up. Writes never block: what the line cannot take now waits for the next p
 
 DJI wants movement-control frames at 50 Hz; the node's loop runs at its profile's rate (10
 Hz). With `stream_thread` a small thread sends the stream's frames between polls, under the
-same lock as everything else, so the rate holds whatever the loop's.
+same lock as everything else, so the rate holds whatever the loop's. `stream_paused` (the
+node's "a tick is running") holds the thread back during a tick, so that its sends fall
+between ticks, never among a tick's own writes; `on_stream` tells a recorder the clock time
+of each, and a replay (no thread) sends them again at those times with `stream_at`.
 
 A serial device that goes away (a loose cable: reads fail with EIO, the tty reads end of
 file) never raises into the loop (`fieldkit.vehicle.serial_port.ReopeningSerial`): the port
@@ -65,6 +68,7 @@ class DjiLink:
         profile: Profile | None = None,
         clock: Callable[[], float] = time.monotonic,
         stream_thread: bool = False,
+        stream_paused: Callable[[], bool] | None = None,
         release_on_close: bool = True,
         reopen_interval_s: float = DEFAULT_INTERVAL_S,
         **options: Any,
@@ -73,9 +77,9 @@ class DjiLink:
 
         `app_id` and `app_key` are the developer's (from the node's config); `profile` and
         the other options are `DjiCore`'s. `stream_thread` sends the movement stream from a
-        thread at the control rate; `release_on_close` gives control authority back when
-        the link is closed. A device lost later is tried again every `reopen_interval_s`
-        seconds of `clock`.
+        thread at the control rate, except while `stream_paused()` is true;
+        `release_on_close` gives control authority back when the link is closed. A device
+        lost later is tried again every `reopen_interval_s` seconds of `clock`.
         """
         self.core = DjiCore(
             app_id=app_id, app_key=app_key, url=url, profile=profile, clock=clock, **options
@@ -94,6 +98,9 @@ class DjiLink:
         #: Taps on the bytes as they cross the port (a recorder): read, and written.
         self.on_rx: Callable[[bytes], None] | None = None
         self.on_tx: Callable[[bytes], None] | None = None
+        #: Told the clock time of each movement frame the thread sends (a recorder).
+        self.on_stream: Callable[[float], None] | None = None
+        self.stream_paused = stream_paused
         self.bytes_written = 0
         self._backlog_dropped = 0  # unwritten past MAX_TX_BACKLOG
         self.release_on_close = release_on_close
@@ -249,11 +256,29 @@ class DjiLink:
         period = 1.0 / self.core.control_rate_hz
         while not self._stop.wait(period / 2):
             with self._lock:
+                # Checked under the lock: a tick's poll cannot have run since, so a send
+                # here comes before everything the tick reads and writes.
+                paused = self.stream_paused
+                if paused is not None and paused():
+                    continue
                 try:
-                    if self.core.stream():
-                        self._flush()
+                    self._stream(self._clock())
                 except Exception as e:  # the loop's link must outlive a bad moment
                     self.core.link_error(f"stream failed: {describe_error(e)}")
+
+    def _stream(self, now: float) -> bool:
+        if not self.core.stream(now):
+            return False
+        if self.on_stream is not None:
+            self.on_stream(now)
+        self._flush()
+        return True
+
+    def stream_at(self, now: float) -> bool:
+        """Send the movement frame due at clock time `now`, as the thread would have (a
+        replay's recorded sends); whether one was due."""
+        with self._lock:
+            return self._stream(now)
 
     # ------------------------------------------------------------------ orders
 
