@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import select
@@ -386,14 +387,20 @@ def test_fieldkit_node_drives_the_husky(tmp_path: Path) -> None:
     script = tmp_path / "drive.bzz"
     script.write_text(DRIVE)
     to = geo.offset_gps(RIG_HOME[0], RIG_HOME[1], 3.0, 0.0)
-    with pty_husky() as (mcu, gps, sim):
-        result = CliRunner().invoke(
-            app,
-            ["node", "--profile", "husky", "--autopilot", mcu, "--gps", gps, "--script",
-             str(script), "--robot-id", "1", "--radio", "none", "--seconds", "8"],
-        )  # fmt: skip
-        assert result.exit_code == 0, result.output
-        assert geo.range_bearing(*sim.position, *to)[0] <= ACCURACY
+    # A logger silenced by someone else in the process must not hide the vehicle's events.
+    silenced = logging.getLogger("fieldkit.node")
+    silenced.disabled, silenced.propagate = True, False
+    try:
+        with pty_husky() as (mcu, gps, sim):
+            result = CliRunner().invoke(
+                app,
+                ["node", "--profile", "husky", "--autopilot", mcu, "--gps", gps, "--script",
+                 str(script), "--robot-id", "1", "--radio", "none", "--seconds", "8"],
+            )  # fmt: skip
+            assert result.exit_code == 0, result.output
+            assert geo.range_bearing(*sim.position, *to)[0] <= ACCURACY
+    finally:
+        silenced.disabled, silenced.propagate = False, True
     assert "husky: arm: done" in result.output
     assert "run over: 80 ticks" in result.output
 

@@ -719,19 +719,24 @@ def _logging_to(say: NodeLog) -> Iterator[None]:
     """Route fieldkit's `logging` (runtime, autopilot link) through the node's one writer."""
     root = logging.getLogger("fieldkit")
     ours = logging.getLogger("fieldkit.node")  # the autopilot's events: mode, arming...
-    saved = (root.level, root.propagate, ours.level)
+    saved = (root.level, root.propagate, root.disabled, ours.level, ours.propagate, ours.disabled)
     handler = say.handler()
     root.addHandler(handler)
     root.setLevel(logging.WARNING)
     root.propagate = False  # each line once, stamped, on stdout
     ours.setLevel(logging.INFO)
+    # Whatever a library or an earlier caller in this process did to them, the node's lines
+    # must reach its writer: a silenced "fieldkit.node" hides every event of the vehicle.
+    root.disabled = ours.disabled = False
+    ours.propagate = True
     try:
         yield
     finally:
         root.removeHandler(handler)
         root.setLevel(saved[0])
-        root.propagate = saved[1]
-        ours.setLevel(saved[2])
+        root.propagate, root.disabled = saved[1], saved[2]
+        ours.setLevel(saved[3])
+        ours.propagate, ours.disabled = saved[4], saved[5]
 
 
 def _restart_in_place(say: NodeLog) -> None:
