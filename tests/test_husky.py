@@ -5,7 +5,6 @@
 
 from __future__ import annotations
 
-import logging
 import math
 import os
 import select
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import pytest
 from rigs import RIG_HOME, HuskyMemoryRig, pty_husky
+from rigs.flights import field_env
 from typer.testing import CliRunner
 
 from fieldkit.cli import app
@@ -387,22 +387,20 @@ def test_fieldkit_node_drives_the_husky(tmp_path: Path) -> None:
     script = tmp_path / "drive.bzz"
     script.write_text(DRIVE)
     to = geo.offset_gps(RIG_HOME[0], RIG_HOME[1], 3.0, 0.0)
-    # A logger silenced by someone else in the process must not hide the vehicle's events.
-    silenced = logging.getLogger("fieldkit.node")
-    silenced.disabled, silenced.propagate = True, False
-    try:
-        with pty_husky() as (mcu, gps, sim):
-            result = CliRunner().invoke(
-                app,
-                ["node", "--profile", "husky", "--autopilot", mcu, "--gps", gps, "--script",
-                 str(script), "--robot-id", "1", "--radio", "none", "--seconds", "8"],
-            )  # fmt: skip
-            assert result.exit_code == 0, result.output
-            assert geo.range_bearing(*sim.position, *to)[0] <= ACCURACY
-    finally:
-        silenced.disabled, silenced.propagate = False, True
-    assert "husky: arm: done" in result.output
-    assert "run over: 80 ticks" in result.output
+    # As the field runs it: its own process (an in-process run inherits whatever earlier
+    # tests left in the logging module).
+    with pty_husky() as (mcu, gps, sim):
+        proc = subprocess.run(
+            [sys.executable, "-m", "fieldkit", "node", "--profile", "husky", "--autopilot", mcu,
+             "--gps", gps, "--script", str(script), "--robot-id", "1", "--radio", "none",
+             "--seconds", "8"],
+            capture_output=True, text=True, cwd=tmp_path, env=field_env(), timeout=180,
+        )  # fmt: skip
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        assert geo.range_bearing(*sim.position, *to)[0] <= ACCURACY
+    output = proc.stdout + proc.stderr
+    assert "husky: arm: done" in output
+    assert "run over: 80 ticks" in output
 
 
 def test_an_mcu_port_that_vanishes_is_reopened_by_path(tmp_path: Path) -> None:
