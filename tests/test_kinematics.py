@@ -428,6 +428,20 @@ def test_profile_battery_endurance() -> None:
     assert v.battery_percent == pytest.approx(50.0, abs=1e-6)
 
 
+def test_set_battery_clamps_and_moves_the_voltage() -> None:
+    b = Battery(full_voltage=16.8, empty_voltage=14.0, endurance_s=100.0)
+    v = Vehicle(SOLO.kinematics, battery=b)
+    v.set_battery(25.0)
+    assert (v.battery_percent, v.voltage) == (25.0, pytest.approx(14.7))
+    v.set_battery(-5.0)
+    assert (v.battery_percent, v.voltage) == (0.0, pytest.approx(14.0))
+    v.set_battery(140.0)
+    assert (v.battery_percent, v.voltage) == (100.0, pytest.approx(16.8))
+    bare = Vehicle(SOLO.kinematics)
+    bare.set_battery(30.0)
+    assert (bare.battery_percent, bare.voltage) == (30.0, 0.0), "no model: the voltage stays"
+
+
 def test_no_battery_model_never_drains() -> None:
     v = Vehicle(SOLO.kinematics)
     v.arm()

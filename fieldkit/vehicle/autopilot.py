@@ -257,7 +257,65 @@ class CoreOptions(TypedDict, total=False):
     target_system: int | None
 
 
-class AutopilotCore:
+def clock_reading(state: dict[str, object], key: str) -> float | None:
+    """The clock reading `key` of a core's `time_state()` (None when missing or not a number)."""
+    v = state.get(key)
+    return float(v) if isinstance(v, int | float) else None
+
+
+class CoreRecords:
+    """What every protocol core keeps the same way (MAVLink, DJI, Clearpath): its event log,
+    its link-error streaks, the heartbeat's age and the clock readings a replay restores.
+
+    The core sets the attributes below in its `__init__`; this only reads and updates them.
+    """
+
+    url: str
+    telemetry: AutopilotState
+    events: deque[Event]
+    link_errors: int
+    heartbeat_timeout_s: float
+    _clock: Callable[[], float]
+    _link_failing: bool
+    _t0: float
+
+    def heartbeat_age(self) -> float:
+        """Seconds since the vehicle was last heard (infinity before the first time)."""
+        last = self.telemetry.last_heartbeat
+        return math.inf if last is None else max(0.0, self._clock() - last)
+
+    @property
+    def heartbeat_lost(self) -> bool:
+        """Whether the vehicle has been silent longer than the profile allows (or never spoke)."""
+        return self.heartbeat_age() > self.heartbeat_timeout_s
+
+    def drain_events(self) -> list[Event]:
+        """The events since the last call, oldest first."""
+        out = list(self.events)
+        self.events.clear()
+        return out
+
+    def _event(self, kind: str, text: str, command: object = None) -> None:
+        # Event.command is typed for MAVLink commands; the other cores' ride along unchanged.
+        self.events.append(Event(self._clock(), kind, text, command))  # type: ignore[arg-type]
+
+    def _link_error(self, text: str) -> None:
+        self.link_errors += 1
+        if not self._link_failing:
+            # Log the first error of a streak only: a dead port fails on every poll.
+            self._link_failing = True
+            self._event("link", f"{self.url}: {text}")
+
+    def _restore_clock(self, state: dict[str, object]) -> None:
+        """Restore the readings every core's `time_state()` has: t0 and when last heard."""
+        t0 = clock_reading(state, "t0")
+        if t0 is not None:
+            self._t0 = t0
+        self.telemetry.last_heartbeat = clock_reading(state, "last_heartbeat")
+        self.telemetry.last_message = clock_reading(state, "last_message")
+
+
+class AutopilotCore(CoreRecords):
     """The node's MAVLink conversation with one autopilot: telemetry in, checked commands out."""
 
     def __init__(
@@ -439,54 +497,19 @@ class AutopilotCore:
 
     def set_time_state(self, state: dict[str, object]) -> None:
         """Restore the clock readings of `time_state` (pending commands are not restored)."""
-
-        def num(key: str) -> float | None:
-            v = state.get(key)
-            return float(v) if isinstance(v, int | float) else None
-
-        t0 = num("t0")
-        if t0 is not None:
-            self._t0 = t0
-        self._last_hb_sent = num("last_hb_sent")
-        self.telemetry.last_heartbeat = num("last_heartbeat")
-        self.telemetry.last_message = num("last_message")
+        self._restore_clock(state)
+        self._last_hb_sent = clock_reading(state, "last_hb_sent")
         texts = state.get("statustexts")
         if isinstance(texts, list):
             self._statustexts.clear()
             for at, text in texts:
                 self._statustexts.append((float(at), str(text)))
 
-    def heartbeat_age(self) -> float:
-        """Seconds since the last vehicle heartbeat (infinity before the first)."""
-        last = self.telemetry.last_heartbeat
-        return math.inf if last is None else max(0.0, self._clock() - last)
-
-    @property
-    def heartbeat_lost(self) -> bool:
-        """Whether the heartbeat is older than the timeout (or never came)."""
-        return self.heartbeat_age() > self.heartbeat_timeout_s
-
     @property
     def pilot_override(self) -> bool:
         """Whether someone else has the vehicle: RC override channel high, or a mode change
         the node did not ask for (pilot's mode switch, the autopilot's own failsafe)."""
         return self.telemetry.rc_override or self.mode_override
-
-    def drain_events(self) -> list[Event]:
-        """The events since the last call, oldest first."""
-        out = list(self.events)
-        self.events.clear()
-        return out
-
-    def _event(self, kind: str, text: str, command: MavCommand | None = None) -> None:
-        self.events.append(Event(self._clock(), kind, text, command))
-
-    def _link_error(self, text: str) -> None:
-        self.link_errors += 1
-        if not self._link_failing:
-            # Log the first error of a streak only: a dead port fails on every poll.
-            self._link_failing = True
-            self._event("link", f"{self.url}: {text}")
 
     def _tick(self, now: float) -> None:
         if self.heartbeat_interval_s is not None and (

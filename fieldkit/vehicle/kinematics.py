@@ -188,6 +188,15 @@ class Vehicle:
         self.z = self._tz = float(alt)
         self.status = IN_AIR
 
+    def set_battery(self, percent: float) -> None:
+        """Jump the charge to `percent` (clamped to 0..100); the voltage follows the battery's
+        linear model (a vehicle without a battery keeps its voltage)."""
+        p = min(100.0, max(0.0, percent))
+        self.battery_percent = p
+        b = self.battery
+        if b is not None:
+            self.voltage = b.empty_voltage + (b.full_voltage - b.empty_voltage) * p * 0.01
+
     # ------------------------------------------------------------------ commands
 
     def arm(self) -> bool:

@@ -52,6 +52,7 @@ from fieldkit.vehicle.autopilot import (
     MavCommand,
     describe_error,
 )
+from fieldkit.vehicle.links import command_outcome, poll_until
 from fieldkit.vehicle.mavlink import adopt_codec
 from fieldkit.vehicle.px4 import Px4Core
 from fieldkit.vehicle.reopen import DEFAULT_INTERVAL_S, ReopenPolicy
@@ -330,11 +331,7 @@ class Autopilot(AutopilotCore):
     ) -> MavCommand:
         """Poll until `command` is over; AutopilotError if it failed or is still pending."""
         ok = self._wait(lambda: command.done, timeout, idle, poll_interval)
-        if not ok:
-            raise AutopilotError(f"{command.name}: not finished after {timeout:g} s")
-        if not command.ok:
-            raise AutopilotError(command.error or f"{command.name}: {command.status.value}")
-        return command
+        return command_outcome(command, ok, timeout, AutopilotError)
 
     def _wait(
         self,
@@ -344,14 +341,7 @@ class Autopilot(AutopilotCore):
         poll_interval: float,
     ) -> bool:
         deadline = self._clock() + timeout
-        while True:
-            self.poll(poll_interval)
-            if cond():
-                return True
-            if self._clock() >= deadline:
-                return False
-            if idle is not None:
-                idle()
+        return poll_until(self.poll, self._clock, cond, deadline, idle, poll_interval)
 
 
 class Px4Autopilot(Autopilot, Px4Core):

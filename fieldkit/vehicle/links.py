@@ -17,10 +17,10 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 from fieldkit.robot.profiles import Profile
-from fieldkit.vehicle.autopilot import AutopilotError, AutopilotState, Event
+from fieldkit.vehicle.autopilot import AutopilotError, AutopilotState, CommandStatus, Event
 from fieldkit.vehicle.core import VehicleCommand
 
 
@@ -106,6 +106,51 @@ class VehicleLink(Protocol):
         """Close the port."""
 
 
+class _Outcome(Protocol):
+    """A command as `command_outcome` reads it (every backend's command is one)."""
+
+    name: str
+    error: str | None
+    status: CommandStatus
+
+    @property
+    def ok(self) -> bool:
+        """Whether the vehicle accepted it."""
+
+
+_C = TypeVar("_C", bound=_Outcome)
+
+
+def poll_until(
+    poll: Callable[[float], object],
+    clock: Callable[[], float],
+    cond: Callable[[], bool],
+    deadline: float,
+    idle: Callable[[], None] | None,
+    poll_interval: float,
+) -> bool:
+    """Poll until `cond()` holds (True) or `clock()` reaches `deadline` (False): the links'
+    start-up waits. `idle` runs between polls (a test steps its simulated vehicle there)."""
+    while True:
+        poll(poll_interval)
+        if cond():
+            return True
+        if clock() >= deadline:
+            return False
+        if idle is not None:
+            idle()
+
+
+def command_outcome(command: _C, finished: bool, timeout: float, error: type[Exception]) -> _C:
+    """`command` once a wait for it is over (`finished`: it ended in time); `error` (the
+    link's AutopilotError) if it is still pending after `timeout` seconds or failed."""
+    if not finished:
+        raise error(f"{command.name}: not finished after {timeout:g} s")
+    if not command.ok:
+        raise error(command.error or f"{command.name}: {command.status.value}")
+    return command
+
+
 def open_link(
     profile: Profile,
     url: str | None = None,
@@ -160,4 +205,4 @@ def open_link(
     return Autopilot.from_profile(profile, url, **options)
 
 
-__all__ = ["VehicleLink", "open_link"]
+__all__ = ["VehicleLink", "command_outcome", "open_link", "poll_until"]

@@ -46,6 +46,7 @@ from fieldkit.vehicle.autopilot import (
     CoreOptions,
     MavCommand,
     _Step,
+    clock_reading,
 )
 
 if TYPE_CHECKING:
@@ -236,9 +237,8 @@ class Px4Core(AutopilotCore):
     def set_time_state(self, state: dict[str, object]) -> None:
         """Restore `time_state()`'s readings."""
         super().set_time_state(state)
-        for key, attr in (("last_setpoint", "_last_setpoint"), ("stream_since", "_stream_since")):
-            v = state.get(key)
-            setattr(self, attr, float(v) if isinstance(v, int | float) else None)
+        self._last_setpoint = clock_reading(state, "last_setpoint")
+        self._stream_since = clock_reading(state, "stream_since")
 
     # ------------------------------------------------------------------ time and bytes
 

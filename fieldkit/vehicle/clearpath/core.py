@@ -58,7 +58,13 @@ from dataclasses import dataclass
 
 from fieldkit.robot import geo
 from fieldkit.robot.profiles import DriveSettings, Profile
-from fieldkit.vehicle.autopilot import AutopilotState, CommandStatus, Event
+from fieldkit.vehicle.autopilot import (
+    AutopilotState,
+    CommandStatus,
+    CoreRecords,
+    Event,
+    clock_reading,
+)
 from fieldkit.vehicle.clearpath import messages as M
 from fieldkit.vehicle.clearpath.controller import GotoController
 from fieldkit.vehicle.clearpath.frame import Frame, FrameReader
@@ -131,7 +137,7 @@ class _Pending:
     command: HuskyCommand | None = None
 
 
-class HuskyCore:
+class HuskyCore(CoreRecords):
     """The node's conversation with one Husky base and its GPS: telemetry in, orders out."""
 
     def __init__(
@@ -312,25 +318,15 @@ class HuskyCore:
         return max(0.0, self._clock() - last)
 
     @property
-    def heartbeat_lost(self) -> bool:
-        """Whether the MCU has been silent longer than the profile allows (or never spoke)."""
-        return self.heartbeat_age() > self.heartbeat_timeout_s
-
-    @property
     def pilot_override(self) -> bool:
         """Whether a person has the base: its e-stop, or the MCU's pause, is on."""
         return bool(self.safety_flags & (M.SAFETY_ESTOP | M.SAFETY_ROS_PAUSE))
 
     def drain_events(self) -> list[Event]:
         """What happened since the last call (the GPS's events too), oldest first."""
-        out = list(self.events) + self.gps.drain_events()
-        self.events.clear()
+        out = super().drain_events() + self.gps.drain_events()
         out.sort(key=lambda e: e.time)
         return out
-
-    def _event(self, kind: str, text: str, command: HuskyCommand | None = None) -> None:
-        # Event.command is typed for MAVLink commands; ours ride along under the same name.
-        self.events.append(Event(self._clock(), kind, text, command))  # type: ignore[arg-type]
 
     def time_state(self) -> dict[str, object]:
         """The core's clock readings, for a replay to restore after the start-up bytes."""
@@ -349,21 +345,12 @@ class HuskyCore:
 
     def set_time_state(self, state: dict[str, object]) -> None:
         """Restore `time_state()`'s readings (pending commands are not restored)."""
-
-        def num(key: str) -> float | None:
-            v = state.get(key)
-            return float(v) if isinstance(v, int | float) else None
-
-        t0 = num("t0")
-        if t0 is not None:
-            self._t0 = t0
-        self.telemetry.last_heartbeat = num("last_heartbeat")
-        self.telemetry.last_message = num("last_message")
-        self._last_cycle = num("last_cycle")
-        self._asking_since = num("asking_since")
-        self._last_diag = num("last_diag")
-        self.gps.fix.last_fix = num("gps_last_fix")
-        self.gps.fix.last_heard = num("gps_last_heard")
+        self._restore_clock(state)
+        self._last_cycle = clock_reading(state, "last_cycle")
+        self._asking_since = clock_reading(state, "asking_since")
+        self._last_diag = clock_reading(state, "last_diag")
+        self.gps.fix.last_fix = clock_reading(state, "gps_last_fix")
+        self.gps.fix.last_heard = clock_reading(state, "gps_last_heard")
 
     # ------------------------------------------------------------------ incoming
 
@@ -398,12 +385,6 @@ class HuskyCore:
         elif isinstance(value, M.Triple) and frame.type == M.MsgType.ORIENTATION:
             if self._yaw_source != "gps_hdt":
                 self._set_yaw(value.c, "imu")
-
-    def _link_error(self, text: str) -> None:
-        self.link_errors += 1
-        if not self._link_failing:
-            self._link_failing = True  # the first of a streak only
-            self._event("link", f"{self.url}: {text}")
 
     def _on_ack(self, a: M.Ack, now: float) -> None:
         for p in self._pending:

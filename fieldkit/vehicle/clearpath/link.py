@@ -38,6 +38,7 @@ from typing import Any
 from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.autopilot import AutopilotError, AutopilotState, describe_error
 from fieldkit.vehicle.clearpath.core import HuskyCommand, HuskyCore
+from fieldkit.vehicle.links import command_outcome, poll_until
 from fieldkit.vehicle.reopen import DEFAULT_INTERVAL_S, ReopenPolicy
 from fieldkit.vehicle.serial_port import PORT_ERRORS, ReopeningSerial
 
@@ -297,11 +298,8 @@ class Husky(HuskyCore):
         poll_interval: float = 0.05,
     ) -> HuskyCommand:
         """Poll until `command` is over; HuskyError if it failed or is still pending."""
-        if not self._wait(lambda: command.done, timeout, idle, poll_interval):
-            raise HuskyError(f"{command.name}: not finished after {timeout:g} s")
-        if not command.ok:
-            raise HuskyError(command.error or f"{command.name}: {command.status.value}")
-        return command
+        ok = self._wait(lambda: command.done, timeout, idle, poll_interval)
+        return command_outcome(command, ok, timeout, HuskyError)
 
     def _wait(
         self,
@@ -311,14 +309,7 @@ class Husky(HuskyCore):
         poll_interval: float,
     ) -> bool:
         deadline = self._clock() + timeout
-        while True:
-            self.poll(poll_interval)
-            if cond():
-                return True
-            if self._clock() >= deadline:
-                return False
-            if idle is not None:
-                idle()
+        return poll_until(self.poll, self._clock, cond, deadline, idle, poll_interval)
 
 
 __all__ = ["Husky", "HuskyError"]

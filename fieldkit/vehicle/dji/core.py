@@ -54,7 +54,9 @@ from fieldkit.vehicle.autopilot import (
     AutopilotError,
     AutopilotState,
     CommandStatus,
+    CoreRecords,
     Event,
+    clock_reading,
     describe_error,
 )
 from fieldkit.vehicle.dji import messages as M
@@ -200,7 +202,7 @@ class _Setpoint:
     serial: int = 0
 
 
-class DjiCore:
+class DjiCore(CoreRecords):
     """The host's OPEN protocol conversation with one M100 flight controller."""
 
     def __init__(
@@ -406,22 +408,6 @@ class DjiCore:
     def _switch_off_f(self) -> bool:
         return self.rc_mode is not None and self.rc_mode <= RC_F_THRESHOLD
 
-    def heartbeat_age(self) -> float:
-        """Seconds since the flight controller was last heard (inf before the first frame)."""
-        last = self.telemetry.last_heartbeat
-        return math.inf if last is None else max(0.0, self._clock() - last)
-
-    @property
-    def heartbeat_lost(self) -> bool:
-        """Whether it has been silent longer than the profile allows (or never spoke)."""
-        return self.heartbeat_age() > self.heartbeat_timeout_s
-
-    def drain_events(self) -> list[Event]:
-        """The events since the last call, oldest first."""
-        out = list(self.events)
-        self.events.clear()
-        return out
-
     def time_state(self) -> dict[str, object]:
         """The core's clock readings, for a replay to restore after the start-up bytes."""
         t = self.telemetry
@@ -440,17 +426,8 @@ class DjiCore:
 
     def set_time_state(self, state: dict[str, object]) -> None:
         """Restore the readings of `time_state` (pending commands are not restored)."""
-
-        def num(key: str) -> float | None:
-            v = state.get(key)
-            return float(v) if isinstance(v, int | float) else None
-
-        t0 = num("t0")
-        if t0 is not None:
-            self._t0 = t0
-        self.telemetry.last_heartbeat = num("last_heartbeat")
-        self.telemetry.last_message = num("last_message")
-        self._last_stream = num("last_stream")
+        self._restore_clock(state)
+        self._last_stream = clock_reading(state, "last_stream")
         seq, task_seq, last_seq = state.get("seq"), state.get("task_seq"), state.get("last_seq")
         if isinstance(seq, int):
             self._seq = seq & 0xFFFF
@@ -1060,16 +1037,9 @@ class DjiCore:
             if cmd is not self._connect:
                 self.cancel(cmd, reason)
 
-    def _event(self, kind: str, text: str, command: DjiCommand | None = None) -> None:
-        # Event.command is typed for MAVLink commands; ours ride along unchanged.
-        self.events.append(Event(self._clock(), kind, text, command))  # type: ignore[arg-type]
-
     def link_error(self, text: str) -> None:
         """Count a failure of the line (the transport's too); the first of a streak is an event."""
-        self.link_errors += 1
-        if not self._link_failing:
-            self._link_failing = True
-            self._event("link", f"{self.url}: {text}")
+        self._link_error(text)
 
     def connection_lost(self, reason: str) -> None:
         """The transport's device vanished (a loose cable): a "link" event, once per outage.

@@ -44,6 +44,7 @@ from typing import Any
 from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.autopilot import AutopilotState, Event, describe_error
 from fieldkit.vehicle.dji.core import DjiCommand, DjiCore, DjiError
+from fieldkit.vehicle.links import command_outcome, poll_until
 from fieldkit.vehicle.reopen import DEFAULT_INTERVAL_S, ReopenPolicy
 from fieldkit.vehicle.serial_port import PORT_ERRORS, ReopeningSerial
 
@@ -438,11 +439,8 @@ class DjiLink:
     ) -> DjiCommand:
         """Poll until `command` is over; DjiError if it failed or is still pending."""
         deadline = self._clock() + timeout
-        if not self._wait(lambda: command.done, deadline, idle, poll_interval):
-            raise DjiError(f"{command.name}: not finished after {timeout:g} s")
-        if not command.ok:
-            raise DjiError(command.error or f"{command.name}: {command.status.value}")
-        return command
+        ok = self._wait(lambda: command.done, deadline, idle, poll_interval)
+        return command_outcome(command, ok, timeout, DjiError)
 
     def _wait(
         self,
@@ -451,14 +449,7 @@ class DjiLink:
         idle: Callable[[], None] | None,
         poll_interval: float,
     ) -> bool:
-        while True:
-            self.poll(poll_interval)
-            if cond():
-                return True
-            if self._clock() >= deadline:
-                return False
-            if idle is not None:
-                idle()
+        return poll_until(self.poll, self._clock, cond, deadline, idle, poll_interval)
 
     # ------------------------------------------------------------------ lifecycle
 

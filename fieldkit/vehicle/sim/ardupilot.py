@@ -280,11 +280,7 @@ class SimArduPilot:
 
     def set_battery(self, percent: float) -> None:
         """Jump the battery to `percent` (voltage follows the profile's linear model)."""
-        v = self.vehicle
-        p = min(100.0, max(0.0, percent))
-        v.battery_percent = p
-        b = self.profile.battery
-        v.voltage = b.empty_voltage + (b.full_voltage - b.empty_voltage) * p * 0.01
+        self.vehicle.set_battery(percent)  # its battery is the profile's
 
     # ------------------------------------------------------------------ time
 

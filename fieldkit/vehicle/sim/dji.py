@@ -254,11 +254,7 @@ class SimM100:
 
     def set_battery(self, percent: float) -> None:
         """Jump the battery to `percent`."""
-        v = self.vehicle
-        p = min(100.0, max(0.0, percent))
-        v.battery_percent = p
-        b = self.profile.battery
-        v.voltage = b.empty_voltage + (b.full_voltage - b.empty_voltage) * p * 0.01
+        self.vehicle.set_battery(percent)  # its battery is the profile's
 
     def _take_back(self, by: str) -> None:
         self.authority = False

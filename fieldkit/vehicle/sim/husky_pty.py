@@ -14,7 +14,6 @@ would), and `run(rate_hz, stop)` pacing the steps in real time for `fieldkit veh
 from __future__ import annotations
 
 import os
-import select
 import threading
 import time
 from collections.abc import Callable
@@ -25,8 +24,7 @@ import serial
 from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.autopilot import describe_error
 from fieldkit.vehicle.sim.husky import HuskyOptions, HuskySimError, SimHusky
-
-_READ = 4096
+from fieldkit.vehicle.sim.lines import READ_CHUNK, read_line, run_real_time, wait_readable
 
 
 class _Port:
@@ -50,8 +48,8 @@ class _Port:
         """What the line holds (b"" if nothing, or nobody on the other end)."""
         try:
             if self.conn is not None:
-                return bytes(self.conn.read(_READ))
-            return os.read(self.fd, _READ)
+                return bytes(self.conn.read(READ_CHUNK))
+            return os.read(self.fd, READ_CHUNK)
         except (BlockingIOError, InterruptedError):
             return b""
         except (OSError, serial.SerialException):
@@ -130,37 +128,16 @@ class SimHuskyPorts(SimHusky):
 
     def service(self, timeout: float = 0.0) -> int:
         """Read and handle what both lines hold, waiting up to `timeout` for a first byte."""
-        if timeout > 0:
-            try:
-                select.select([self.mcu_port.fd, self.gps_port.fd], [], [], timeout)
-            except (OSError, ValueError):
-                return 0
-        handled = 0
-        for port, line in ((self.mcu_port, self.mcu), (self.gps_port, self.gps)):
-            total = 0
-            while total < 1 << 16:
-                data = port.read()
-                if not data:
-                    break
-                total += len(data)
-                handled += line.receive_data(data)
-        return handled
+        if not wait_readable([self.mcu_port.fd, self.gps_port.fd], timeout):
+            return 0
+        mcu = read_line(self.mcu_port.read, self.mcu.receive_data)
+        return mcu + read_line(self.gps_port.read, self.gps.receive_data)
 
     def run(
         self, rate_hz: float, stop: threading.Event, clock: Callable[[], float] = time.monotonic
     ) -> None:
         """Step at `rate_hz` in real time until `stop` is set; the lines are served between."""
-        period = 1.0 / rate_hz
-        next_t = clock()
-        while not stop.is_set():
-            now = clock()
-            if now >= next_t:
-                self.step(period)
-                next_t += period
-                if next_t < now - 1.0:
-                    next_t = now  # suspended for a while: resume, do not race to catch up
-                continue
-            self.service(min(next_t - now, 0.05))
+        run_real_time(rate_hz, stop, clock, self.step, self.service)
 
     def close(self) -> None:
         """Close the devices this opened (descriptors given stay open)."""

@@ -14,8 +14,6 @@ for `fieldkit vehicle-sim`.
 
 from __future__ import annotations
 
-import os
-import select
 import threading
 import time
 from collections.abc import Callable
@@ -27,40 +25,14 @@ from fieldkit.robot.profiles import Profile
 from fieldkit.vehicle.autopilot import describe_error
 from fieldkit.vehicle.mavlink import adopt_codec
 from fieldkit.vehicle.sim.ardupilot import SimArduPilot, SimOptions, VehicleSimError
+from fieldkit.vehicle.sim.lines import (
+    READ_CHUNK,
+    FdLine,
+    read_line,
+    run_real_time,
+    wait_readable,
+)
 from fieldkit.vehicle.sim.px4 import SimPx4
-
-
-class _FdPort:
-    """The vehicle's end of a pty: a raw file descriptor it does not own."""
-
-    def __init__(self, fd: int) -> None:
-        os.set_blocking(fd, False)
-        self.fd = fd
-
-    def fileno(self) -> int | None:
-        """The descriptor."""
-        return self.fd
-
-    def read(self) -> bytes:
-        """What the line holds (b"" if nothing or nobody on the other end)."""
-        try:
-            return os.read(self.fd, 4096)
-        except (BlockingIOError, InterruptedError):
-            return b""
-        except OSError:
-            return b""  # EIO: nobody has the slave open; nothing to read
-
-    def write(self, data: bytes) -> int:
-        """Bytes written; a full line takes fewer, as a UART's buffer would."""
-        try:
-            return os.write(self.fd, data)
-        except (BlockingIOError, InterruptedError):
-            return 0
-        except OSError:
-            return 0
-
-    def close(self) -> None:
-        """Nothing: the caller owns the descriptor."""
 
 
 class _UrlPort:
@@ -79,7 +51,7 @@ class _UrlPort:
     def read(self) -> bytes:
         """What the connection holds."""
         try:
-            data = self.conn.recv(4096)
+            data = self.conn.recv(READ_CHUNK)
         except Exception:  # a closed socket or serial port reads as silence
             return b""
         if isinstance(data, str):
@@ -121,12 +93,12 @@ class SimVehicle(SimArduPilot):
         `SimArduPilot`'s.
         """
         super().__init__(profile, **options)
-        self.port: _FdPort | _UrlPort = self._open(device, baud)
+        self.port: FdLine | _UrlPort = self._open(device, baud)
         self.device = device if isinstance(device, str) else f"fd {device}"
 
-    def _open(self, device: str | int, baud: int) -> _FdPort | _UrlPort:
+    def _open(self, device: str | int, baud: int) -> FdLine | _UrlPort:
         if isinstance(device, int):
-            return _FdPort(device)
+            return FdLine(device)
         try:
             url_port = _UrlPort(device, baud, self.sysid, self.compid)
         except Exception as e:  # serial, socket and value errors alike
@@ -152,38 +124,22 @@ class SimVehicle(SimArduPilot):
         self, rate_hz: float, stop: threading.Event, clock: Callable[[], float] = time.monotonic
     ) -> None:
         """Step at `rate_hz` in real time until `stop` is set; the link is served in between."""
-        period = 1.0 / rate_hz
-        next_t = clock()
-        while not stop.is_set():
-            now = clock()
-            if now >= next_t:
-                self.step(period)
-                next_t += period
-                if next_t < now - 1.0:
-                    next_t = now  # suspended for a while: resume, do not race to catch up
-                continue
-            wait = min(next_t - now, 0.05)
-            if self.port.fileno() is None:
-                stop.wait(wait)
-            self.service(wait)
+        # A URL port without a descriptor cannot be select()ed on: wait on `stop` instead.
+        run_real_time(
+            rate_hz,
+            stop,
+            clock,
+            self.step,
+            self.service,
+            can_wait=lambda: self.port.fileno() is not None,
+        )
 
     def service(self, timeout: float = 0.0) -> int:
         """Read and handle what the link holds, waiting up to `timeout` for the first byte."""
         fd = self.port.fileno()
-        if timeout > 0 and fd is not None:
-            try:
-                select.select([fd], [], [], timeout)
-            except (OSError, ValueError):
-                return 0
-        handled = 0
-        total = 0
-        while total < 1 << 16:
-            data = self.port.read()
-            if not data:
-                break
-            total += len(data)
-            handled += self.receive_data(data)
-        return handled
+        if not wait_readable([] if fd is None else [fd], timeout):
+            return 0
+        return read_line(self.port.read, self.receive_data)
 
     def close(self) -> None:
         """Close the port this vehicle opened (a pty master given as a descriptor stays open)."""
