@@ -1,4 +1,4 @@
-"""Radio traffic of one swarm barrier, old (one stigmergy key per robot) against new (bitsets).
+"""Radio traffic of one swarm barrier: the three designs of issue 20 side by side.
 
     python bench/barrier_traffic.py [--sizes 10,100,1000] [--drop 0] [--seed 0]
 
@@ -9,9 +9,13 @@ size and barrier: steps until the last robot passed, messages sent, bytes sent, 
 robot, and the growth factor of messages and bytes from the previous size (10x the robots:
 a growth of 10 is linear, 100 quadratic).
 
-The old barrier is `bench/barrier_flood.bzz` (the shipped `include/barrier.bzz` before issue
-20), the new one the shipped `buzz_scripts/include/barrier.bzz`; both run unchanged on the
-same probe script. Robots stand on a grid at the density of the deployment (12.2 m apart,
+The barriers: `bench/barrier_flood.bzz` (the shipped `include/barrier.bzz` before issue 20:
+one stigmergy key per robot), `bench/barrier_bitsets.bzz` (issue 20's first rewrite:
+readiness bitsets gossiped by neighbours) and the shipped `buzz_scripts/include/barrier.bzz`
+(counts summed up a tree over the neighbour graph, robots speaking only with news), the
+last one twice: rooted at robot 1 (`barrier_new_at`, as states.bzz roots a command's barrier
+at the robot the command came from) and with the root elected (`barrier_new`: the lowest id
+heard). All run unchanged on the same probe script. Robots stand on a grid at the density of the deployment (12.2 m apart,
 20 m range: about 8 robots in range of each, as bench/sim_scale.py), ids row by row. Each
 robot drains its outbox with ROSBuzz's bundle budget (186 bytes of messages, 2 bytes of
 framing each), so a busy radio delays messages instead of losing them; the harness sends
@@ -40,6 +44,7 @@ from fieldkit.sim.radio import LinkModel  # noqa: E402
 
 NEW = ROOT / "buzz_scripts" / "include" / "barrier.bzz"
 OLD = ROOT / "bench" / "barrier_flood.bzz"
+BITSETS = ROOT / "bench" / "barrier_bitsets.bzz"
 SPACING_M = 12.2
 RANGE_M = 20.0
 QUIET_STEPS = 10  # steps without a message after the last pass: the barrier is over
@@ -50,7 +55,7 @@ function init() {
   T = 0
   OUT = "waiting"
   AT = -1
-  B = barrier_new(7, 900, THRESHOLD)
+  B = NEW_BARRIER
 }
 function step() {
   T = T + 1
@@ -94,11 +99,17 @@ def grid(n: int) -> dict[int, tuple[float, float, float]]:
     }
 
 
-def measure(barrier: Path, n: int, *, drop: float, seed: int, max_steps: int) -> Traffic:
-    """Run one barrier of `n` robots with the barrier file `barrier`."""
+def measure(
+    barrier: Path, n: int, *, drop: float, seed: int, max_steps: int, root: int | None = None
+) -> Traffic:
+    """Run one barrier of `n` robots with the barrier file `barrier` (the tree rooted at
+    robot `root` if given)."""
+    new = "barrier_new(7, 900, THRESHOLD)"
+    if root is not None:
+        new = f"barrier_new_at(7, 900, THRESHOLD, {root})"
     with tempfile.TemporaryDirectory() as d:
         shutil.copy(barrier, Path(d) / "barrier.bzz")
-        program = bvm.compile_source(PROBE, str(Path(d) / "probe.bzz"))
+        program = bvm.compile_source(PROBE.replace("NEW_BARRIER", new), str(Path(d) / "probe.bzz"))
 
     def setup(rid: int, vm: bvm.VM) -> None:
         vm["THRESHOLD"] = n
@@ -144,6 +155,7 @@ def main() -> None:
     ap.add_argument("--drop", type=float, default=0.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-steps", type=int, default=3000)
+    ap.add_argument("--only", default="", help="only the barriers whose name holds this")
     args = ap.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     print(
@@ -151,10 +163,19 @@ def main() -> None:
         " | bytes/robot | growth, messages | growth, bytes | wall s |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for name, path in (("old (key per robot)", OLD), ("new (bitsets)", NEW)):
+    barriers: list[tuple[str, Path, int | None]] = [
+        ("key per robot (before issue 20)", OLD, None),
+        ("bitsets (issue 20, first)", BITSETS, None),
+        ("tree, rooted (shipped)", NEW, 1),
+        ("tree, elected root (shipped)", NEW, None),
+    ]
+    chosen = [b for b in barriers if not args.only or args.only in b[0]]
+    for name, path, root in chosen:
         prev: Traffic | None = None
         for n in sizes:
-            t = measure(path, n, drop=args.drop, seed=args.seed, max_steps=args.max_steps)
+            t = measure(
+                path, n, drop=args.drop, seed=args.seed, max_steps=args.max_steps, root=root
+            )
             print(
                 f"| {name} | {n} | {t.steps_to_pass if t.steps_to_pass is not None else 'never'}"
                 f" | {t.messages:,} | {t.bytes:,} | {t.messages / n:.1f} | {t.bytes / n:,.0f}"

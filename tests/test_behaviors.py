@@ -89,7 +89,9 @@ def test_barrier_passes_on_ten_robots_at_half_loss(seed: int) -> None:
     h = barrier_run(list(range(1, 11)), drop=0.5, seed=seed, threshold=10)
     outcomes = {rid: (vm["OUT"], vm["AT"]) for rid, vm in h.vms.items()}
     assert {o for o, _ in outcomes.values()} == {"passed"}
-    assert max(at for _, at in outcomes.values()) <= 20
+    # The counts go up a tree and the flag comes down it, each hop waiting for its
+    # acknowledgement: 12-21 steps over these seeds (the bitsets' flood took up to 20).
+    assert max(at for _, at in outcomes.values()) <= 25
 
 
 @pytest.mark.parametrize("seed", [1, 2])
