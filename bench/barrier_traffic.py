@@ -15,11 +15,12 @@ readiness bitsets gossiped by neighbours) and the shipped `buzz_scripts/include/
 (counts summed up a tree over the neighbour graph, robots speaking only with news), the
 last one twice: rooted at robot 1 (`barrier_new_at`, as states.bzz roots a command's barrier
 at the robot the command came from) and with the root elected (`barrier_new`: the lowest id
-heard). All run unchanged on the same probe script. Robots stand on a grid at the density of the deployment (12.2 m apart,
-20 m range: about 8 robots in range of each, as bench/sim_scale.py), ids row by row. Each
-robot drains its outbox with ROSBuzz's bundle budget (186 bytes of messages, 2 bytes of
-framing each), so a busy radio delays messages instead of losing them; the harness sends
-each Buzz message as its own packet (tests/harness.py), so drops, when asked for, are per
+heard). All run unchanged on the same probe script. Robots stand on a grid at the density
+of the deployment (12.2 m apart, 20 m range: about 8 robots in range of each, as
+bench/sim_scale.py), ids row by row. Each robot drains its outbox with ROSBuzz's bundle
+budget (186 bytes of messages, 2 bytes of framing each), so a busy radio delays messages
+instead of losing them; the harness sends each Buzz message as its own packet
+(tests/harness.py), so drops, when asked for, are per
 message. The old barrier at 1,000 robots takes a few minutes on a 2-core machine.
 """
 

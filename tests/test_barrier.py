@@ -8,10 +8,9 @@ from pathlib import Path
 
 import pytest
 from harness import Harness
-from test_behaviors import BARRIER_PROBE, INCLUDE, SCRIPTS, StandIn, barrier_run
+from test_behaviors import BARRIER_PROBE, INCLUDE, SCRIPTS, StandIn
 
 import bvm
-from bvm import wire
 from fieldkit.sim.radio import LinkModel
 
 ROSBUZZ = Path(__file__).resolve().parent / "data" / "rosbuzz"
@@ -136,22 +135,88 @@ def test_a_timed_out_command_barrier_resumes_the_previous_state() -> None:
     assert len(timed_out) == 4 and all(line.endswith("of 5 -> TURNEDOFF") for line in timed_out)
 
 
-def test_one_message_per_waiting_robot_per_step_and_it_stays_small() -> None:
-    # What makes the traffic linear: a waiting robot sends one message a step, whatever the
-    # swarm's size; nothing is relayed by flooding. 40 robots on a line, 5 in range of each.
-    ids = list(range(1, 41))
-    h = barrier_run(ids, drop=0.0, seed=1, threshold=40, steps=1)
+def grid_run(side: int, *, root: int | None = 1) -> tuple[Harness, int, list[int]]:
+    """side x side robots 12.2 m apart with a 20 m range (8 neighbours each, ids row by
+    row) in one barrier of the whole grid, run until everyone passed and the radio went
+    quiet: the harness, the step the last robot passed, every message's size."""
+    n = side * side
+    new = "barrier_new(KEY, CODE, THRESHOLD)"
+    if root is not None:
+        new = f"barrier_new_at(KEY, CODE, THRESHOLD, {root})"
+    program = bvm.compile_source(
+        BARRIER_PROBE.replace("barrier_new(KEY, CODE, THRESHOLD)", new),
+        str(INCLUDE / "probe.bzz"),
+    )
+
+    def setup(rid: int, vm: bvm.VM) -> None:
+        vm["JOIN"], vm["KEY"], vm["CODE"], vm["THRESHOLD"] = 1, 4, 900, n
+        vm["BARRIER_TIMEOUT"] = 1000
+
+    positions = {
+        i: (((i - 1) % side) * 12.2, ((i - 1) // side) * 12.2, 0.0) for i in range(1, n + 1)
+    }
+    h = Harness(
+        program,
+        range(1, n + 1),
+        positions=positions,
+        link=LinkModel(range_m=20.0),
+        seed=1,
+        setup=setup,
+        budget_bytes=186,
+        overhead=2,
+    )
     sizes: list[int] = []
-    for _ in range(10):
-        before = h.radio.sent
+    transmit = h.radio.transmit
+
+    def counting(step: int, sender: int, payloads, where) -> None:  # type: ignore[no-untyped-def]
+        payloads = list(payloads)
+        sizes.extend(len(p) for p in payloads)
+        transmit(step, sender, payloads, where)
+
+    h.radio.transmit = counting  # type: ignore[method-assign]
+    passed_at, quiet = None, 0
+    while h.step_count < 400 and quiet < 10:
+        before = len(sizes)
         h.step()
-        assert h.radio.sent - before <= len(ids)
-    for vm in h.vms.values():
-        for payload in vm.drain_outbox():
-            msg = wire.decode(payload)
-            assert isinstance(msg, wire.Broadcast)
-            sizes.append(len(payload))
-    assert max(sizes, default=0) <= 60
+        if passed_at is None and all(vm["OUT"] == "passed" for vm in h.vms.values()):
+            passed_at = h.step_count
+        quiet = quiet + 1 if passed_at is not None and len(sizes) == before else 0
+    assert h.errors == {}
+    assert passed_at is not None
+    return h, passed_at, sizes
+
+
+def test_traffic_per_robot_stays_flat_as_the_swarm_grows() -> None:
+    # What makes the traffic linear: robots speak only with news, a handful of times per
+    # barrier whatever the swarm's size, and a message stays small. 16 and 144 robots.
+    small = grid_run(4)
+    large = grid_run(12)
+    per_robot = [len(sizes) / len(h.ids) for h, _, sizes in (small, large)]
+    assert per_robot[1] <= 5.0
+    assert per_robot[1] <= 1.5 * per_robot[0]
+    assert max(small[2] + large[2]) <= 72
+    # The latency is what grows: up the tree and down again, a few steps per hop.
+    assert small[1] < large[1] <= 60
+
+
+def test_an_elected_root_costs_more_but_passes() -> None:
+    # barrier_new elects the lowest id: smaller roots sweep across the grid first.
+    h, _, sizes = grid_run(8, root=None)
+    rooted = grid_run(8)[2]
+    assert {vm["B"]["st"]["root"] for vm in h.vms.values()} == {1}
+    assert len(rooted) < len(sizes)
+
+
+def test_a_command_barrier_is_rooted_at_the_commands_origin() -> None:
+    # The robot the remote control gave the command to roots the barrier; when two robots
+    # got the same command, everyone settles on the lower id.
+    sim = StandIn(SCRIPTS / "task_allocation.bzz", 6, drop=0.2, seed=5, BARRIER_TIMEOUT=300)
+    sim.rc[4] = 900
+    sim.rc[6] = 900
+    sim.run(200, until=lambda: "BARRIERWAIT" not in sim.states())
+    assert {vm["CMD_ORIGIN"] for vm in sim.h.vms.values()} == {4}
+    assert {vm["BARRIER_OUTCOME"] for vm in sim.h.vms.values()} == {"passed"}
+    assert {vm["FLOW_BARRIER"]["st"]["root"] for vm in sim.h.vms.values()} == {4}
 
 
 def test_barrier_messages_of_another_code_are_ignored() -> None:
