@@ -417,8 +417,7 @@ class DistributedSimulation:
         try:
             self._workers = self._start_workers(workers, scheduler)
             n = len(self._workers)
-            if n > config.robots:
-                raise DistributedError(f"{n} workers for {config.robots} robots: at most one each")
+            self._check_count(n)
             self.parts = partition({rid: (p.east, p.north) for rid, p in poses.items()}, n)
             self._owner = {rid: k for k, part in enumerate(self.parts) for rid in part}
             pub = config.operator_pub
@@ -446,6 +445,7 @@ class DistributedSimulation:
     def _start_workers(self, workers: int | None, scheduler: str | None) -> list[_Worker]:
         if scheduler is None:
             assert workers is not None
+            self._check_count(workers)  # before starting any process
             return [_ProcessWorker(k) for k in range(workers)]
         from fieldkit.sim.sweep import SweepError, cluster_client
 
@@ -461,6 +461,11 @@ class DistributedSimulation:
         n = len(addresses) if workers is None else workers
         # Round robin: with more parts than cluster workers, some hold two.
         return [_DaskWorker(k, client, addresses[k % len(addresses)]) for k in range(n)]
+
+    def _check_count(self, workers: int) -> None:
+        robots = self.config.robots
+        if workers > robots:
+            raise DistributedError(f"{workers} workers for {robots} robots: at most one each")
 
     def close(self) -> None:
         """Stop the workers (and leave the cluster); safe to call twice."""
