@@ -103,6 +103,7 @@ class PartTick:
     positions: list[tuple[float, float, float]]
     extras: dict[int, Extra]  # only robots that logged, failed or relay something
     states: dict[int, str | None]  # only robots whose BVMSTATE changed
+    cpu_s: float = 0.0  # the worker's CPU time for the tick (not its transport)
 
 
 @dataclass
@@ -177,6 +178,7 @@ class SwarmPart:
 
     def step(self, t: int, receptions: list[Reception], rcs: dict[int, RcCommand]) -> PartTick:
         """Tick `t` for the part's robots: radio in, neighbours, each robot's turn."""
+        cpu = time.process_time()
         sim = self.sim
         if sim.tick != t:
             raise RuntimeError(f"part at tick {sim.tick} asked for tick {t}")
@@ -185,7 +187,9 @@ class SwarmPart:
             neighbors = sim._neighbors(t)
             sim._step_robots(t, rcs, neighbors)
         sim.tick += 1
-        return self._result()
+        result = self._result()
+        result.cpu_s = time.process_time() - cpu
+        return result
 
     def _result(self) -> PartTick:
         sim = self.sim
@@ -363,6 +367,15 @@ class Timings:
     wait_s: float = 0.0
     start_s: float = 0.0
     ticks: int = 0
+    # CPU time, which other processes on the machine do not inflate: the coordinator's
+    # serial work, and every worker's stepping (their sum: the parallel work).
+    coordinator_cpu_s: float = 0.0
+    workers_cpu_s: float = 0.0
+
+    def reset(self) -> None:
+        """Start counting again (after a warm-up)."""
+        self.coordinator_s = self.wait_s = self.coordinator_cpu_s = self.workers_cpu_s = 0.0
+        self.ticks = 0
 
 
 class DistributedSimulation:
@@ -485,6 +498,7 @@ class DistributedSimulation:
         """Advance every robot by one tick, on the workers."""
         clock = time.perf_counter
         t0 = clock()
+        cpu0 = time.process_time()
         t = self.tick
         owner = self._owner
         batches: list[list[Reception]] = [[] for _ in self._workers]
@@ -521,6 +535,10 @@ class DistributedSimulation:
         timings = self.timings
         timings.coordinator_s += (t1 - t0) + (clock() - t2)
         timings.wait_s += t2 - t1
+        # Blocked on the workers, the coordinator uses no CPU: all of its CPU time is serial
+        # work, the results' unpickling included.
+        timings.coordinator_cpu_s += time.process_time() - cpu0
+        timings.workers_cpu_s += sum(r.cpu_s for r in results)
         timings.ticks += 1
 
     def _merge(self, results: Sequence[PartTick], *, broadcast: bool) -> None:
