@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, cast
 
@@ -35,6 +36,8 @@ if TYPE_CHECKING:
     from dask.distributed import Client
 
     from fieldkit.sim.experiments import Plan
+    from fieldkit.sim.simulator import SimConfig
+    from fieldkit.sim.tracks import SimRecorder
 
 app = typer.Typer(
     help="Simulate a swarm: many robots, each running the script, over an imperfect radio.",
@@ -119,6 +122,25 @@ def run_cmd(
         int,
         typer.Option("--ground-port", metavar="P", help="With --ground: the page's port."),
     ] = 8080,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            "--workers",
+            metavar="W",
+            help="Step the swarm in W local worker processes, robots split by where they "
+            "start; the same results as one process (with --scheduler: W parts on the cluster).",
+            show_default=False,
+        ),
+    ] = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(
+            "--scheduler",
+            metavar="ADDRESS",
+            help="Step the swarm on the workers of a running Dask cluster (tcp://host:8786).",
+            show_default=False,
+        ),
+    ] = None,
 ) -> None:
     """Run SCRIPT on N simulated robots: OUT/summary.json, log.txt, trajectories.csv, plot.png."""
     from fieldkit.errors import FieldkitError
@@ -131,6 +153,11 @@ def run_cmd(
     from fieldkit.sim.updates import SimUpdate
 
     attacks = parse_attacks(attack)
+    _check_split(
+        workers,
+        scheduler,
+        {"--ground": ground, "--record": record, "--update": update, "--attack": attack},
+    )
     commands = parse_commands(command)
     globals_ = parse_sets(set_)
     lat, lon = parse_home(home)
@@ -170,9 +197,13 @@ def run_cmd(
             operator_pub=None if robot_keys is None else robot_keys.operator_pub,
             update_agents=ground,
         )
-        sim = Simulation(config)
+        sim = Simulation(config) if workers is None and scheduler is None else None
     except (ConfigError, BuzzCompileError) as e:
         raise fail(e) from None
+    if sim is None:
+        warn_if_insecure(mode)
+        _run_split(config, workers, scheduler, out, script, globals_, (lat, lon))
+        return
     out_dir(out)
     bags: list[Path] = []
     if record is not None:
@@ -182,7 +213,7 @@ def run_cmd(
         except FieldkitError as e:  # a bag of that name exists already
             raise fail(e) from None
     warn_if_insecure(mode)
-    from fieldkit.sim.tracks import SimRecorder, write_tracks
+    from fieldkit.sim.tracks import SimRecorder
 
     recorder = SimRecorder(sim)
     try:
@@ -198,17 +229,81 @@ def run_cmd(
         sim.close_recording()
     for bag in bags:
         wrote(bag)
-    summary = sim.summary()
-    summary["home"] = [lat, lon]
+    _write_run(sim.summary(), sim.log, recorder, config, out, script, globals_, (lat, lon))
+
+
+def _check_split(workers: int | None, scheduler: str | None, others: dict[str, object]) -> None:
+    """Refuse `--workers`/`--scheduler` with a bad count or with what a split swarm cannot do
+    (each of these watches or alters every robot's radio inside the tick)."""
+    if workers is None and scheduler is None:
+        return
+    flag = "--workers" if workers is not None else "--scheduler"
+    if workers is not None and not 1 <= workers <= 1024:
+        raise fail(f"--workers must be between 1 and 1024, got {workers}")
+    for option, given in others.items():
+        if given:
+            raise fail(f"{flag} cannot be combined with {option}")
+
+
+def _run_split(
+    config: SimConfig,
+    workers: int | None,
+    scheduler: str | None,
+    out: Path,
+    script: Path,
+    globals_: Mapping[str, object],
+    home: tuple[float, float],
+) -> None:
+    """`sim run` with the robots stepped by workers: the same files as one process."""
+    from fieldkit.sim.distributed import DistributedError, DistributedSimulation
+    from fieldkit.sim.simulator import ConfigError
+    from fieldkit.sim.tracks import SimRecorder
+
+    try:
+        sim = DistributedSimulation(config, workers=workers, scheduler=scheduler)
+    except (ConfigError, BuzzCompileError, DistributedError) as e:
+        raise fail(e) from None
+    out_dir(out)
+    try:
+        recorder = SimRecorder(sim)
+        parts = len(sim.parts)
+        label = f"simulating {config.robots} robots on {parts} worker{'s' if parts > 1 else ''}"
+        with progress_bar(label, round(config.seconds * 10)) as advance:
+            sim.run(progress=advance, after_step=recorder.after_step)
+        summary = sim.summary()
+    except DistributedError as e:
+        raise fail(e) from None
+    finally:
+        sim.close()
+    _write_run(summary, sim.log, recorder, config, out, script, globals_, home)
+
+
+def _write_run(
+    summary: dict[str, object],
+    log: list[str],
+    recorder: SimRecorder,
+    config: SimConfig,
+    out: Path,
+    script: Path,
+    globals_: Mapping[str, object],
+    home: tuple[float, float],
+) -> None:
+    """Write a run's summary.json, log.txt, trajectories.csv and plot.png and say how it
+    ended (exit 1 if robots ended in their failsafe)."""
+    from fieldkit.sim.tracks import write_tracks
+
+    summary["home"] = list(home)
     summary["spacing_m"] = config.spacing_m
     summary["globals"] = globals_
     write_json(out / "summary.json", summary)
     log_path = out / "log.txt"
     try:
         with log_path.open("w", encoding="utf-8") as f:
-            for line in sim.log:
+            for line in log:
                 f.write(line + "\n")
-        written = write_tracks(recorder.tracks, out, f"sim run {script.name}, {robots} robots")
+        written = write_tracks(
+            recorder.tracks, out, f"sim run {script.name}, {config.robots} robots"
+        )
     except OSError as e:
         raise fail(f"{e.filename or out}: cannot write: {e.strerror or e}") from None
     for path in (log_path, *written):

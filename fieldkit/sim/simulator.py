@@ -43,7 +43,7 @@ from fieldkit.robot.runtime import RobotRuntime
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import ON_GROUND, Sensors
 from fieldkit.sim.attacker import ATTACKS, Attacker
-from fieldkit.sim.radio import LinkModel, RadioModel
+from fieldkit.sim.radio import LinkModel, RadioModel, Reception
 from fieldkit.sim.updates import SimUpdate, SwarmUpdates
 from fieldkit.update.release import Release
 from fieldkit.vehicle.kinematics import Vehicle
@@ -219,6 +219,19 @@ class SimConfig:
         return list(range(self.first_id, self.first_id + self.robots))
 
 
+def start_grid(config: SimConfig) -> dict[int, tuple[float, float]]:
+    """Where each robot of a run without a start state begins (east, north): a square grid
+    of `spacing_m`, each spot jittered by up to 0.2 m, drawn from the run's seed."""
+    rng = random.Random(f"layout:{config.seed}")
+    side = max(1, math.ceil(math.sqrt(config.robots)))
+    out = {}
+    for k, rid in enumerate(config.ids()):
+        x = (k % side) * config.spacing_m + rng.uniform(-0.2, 0.2)
+        y = (k // side) * config.spacing_m + rng.uniform(-0.2, 0.2)
+        out[rid] = (x, y)
+    return out
+
+
 def _id_range(ids: list[int]) -> str:
     """`1..5` for consecutive ids, else the list: how an error names the robots."""
     if ids == list(range(ids[0], ids[0] + len(ids))):
@@ -332,13 +345,11 @@ class Simulation:
             key = bundle_auth.bundle_key(config.swarm_key)
         #: Hostile frames the robots accepted (a bundle decoded, a command acted on).
         self.accepted_from_attacker = 0
-        rng = random.Random(f"layout:{config.seed}")
-        side = max(1, math.ceil(math.sqrt(config.robots)))
-        for k, rid in enumerate(config.ids()):
+        grid = start_grid(config) if config.start is None else {}
+        for rid in config.ids():
             pose = None if config.start is None else config.start[rid]
             if pose is None:
-                x = (k % side) * config.spacing_m + rng.uniform(-0.2, 0.2)
-                y = (k // side) * config.spacing_m + rng.uniform(-0.2, 0.2)
+                x, y = grid[rid]
                 vehicle = Vehicle.from_profile(self.profile, x=x, y=y)
             else:
                 vehicle = Vehicle.from_profile(self.profile, x=pose.east, y=pose.north)
@@ -451,16 +462,13 @@ class Simulation:
         s.armed = v.armed
         return s
 
-    def step(self) -> None:
-        """Advance every robot by one tick."""
-        t = self.tick
+    def _radio_in(self, t: int, receptions: Sequence[Reception]) -> None:
+        """The broadcasts due at tick t into their receivers: positions to the heard tables,
+        messages to the VMs (a swarm split across processes feeds each part its own)."""
         robots = self.robots
         rec = self.recording
-        if rec is not None:
-            rec.begin(t, t * TICK_S)
-        # 1. radio in
         reparse = self.config.decode_bundles
-        for sender, data, pos, receivers, sent in self.radio.receptions(t):
+        for sender, data, pos, receivers, sent in receptions:
             if rec is not None:
                 where = None if sent is _UPDATE_FRAME else (pos[0], pos[1])
                 rec.heard(sender, data, where, receivers)
@@ -493,6 +501,16 @@ class Simulation:
                     heard = self._heard.get(receiver)
                     if heard is not None:
                         heard[src] = entry
+
+    def step(self) -> None:
+        """Advance every robot by one tick."""
+        t = self.tick
+        robots = self.robots
+        rec = self.recording
+        if rec is not None:
+            rec.begin(t, t * TICK_S)
+        # 1. radio in
+        self._radio_in(t, self.radio.receptions(t))
         if self.attacker is not None:
             self._hostile_in(t)
         if self.peers:
@@ -508,7 +526,15 @@ class Simulation:
         if self.updates is not None:
             self._step_updating(t, rcs, neighbors)
             return
-        for robot in robots.values():
+        self._step_robots(t, rcs, neighbors)
+        self.tick += 1
+
+    def _step_robots(
+        self, t: int, rcs: dict[int, RcCommand], neighbors: dict[int, nb.Columns]
+    ) -> None:
+        """2.-5. for every robot in id order: sensors, step, radio out, actuators."""
+        rec = self.recording
+        for robot in self.robots.values():
             # 2.-5. sensors, step, radio out, actuators: the robot's own tick
             runtime = robot.runtime
             out = runtime.tick(self._sensors(robot), rcs.get(robot.id), neighbors.get(robot.id))
@@ -523,7 +549,6 @@ class Simulation:
             robot.vehicle.step(TICK_S)
             if rec is not None:
                 rec.end(robot.id, self)
-        self.tick += 1
 
     def _step_updating(
         self, t: int, rcs: dict[int, RcCommand], neighbors: dict[int, nb.Columns]
@@ -835,5 +860,6 @@ __all__ = [
     "CROWD",
     "default_spacing",
     "log_line",
+    "start_grid",
     "tuned_collector",
 ]

@@ -16,15 +16,16 @@ sample, not one object per robot and sample: a 1,000-robot run has a million poi
 from __future__ import annotations
 
 import csv
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from fieldkit.robot import geo
 
 if TYPE_CHECKING:
-    from fieldkit.sim.simulator import Simulation
+    from fieldkit.sim.radio import RadioModel
+    from fieldkit.sim.simulator import SimConfig
 
 #: Samples per simulated (or wall-clock, in SITL) second.
 SAMPLE_S = 1.0
@@ -92,11 +93,39 @@ class Tracks:
         return (*POSITION_COLUMNS, self.state_column)
 
 
+class _Positioned(Protocol):
+    x: float
+    y: float
+    z: float
+
+
+class _Sampled(Protocol):
+    """A robot as sampled: its vehicle's position and its script's state."""
+
+    @property
+    def vehicle(self) -> _Positioned: ...
+
+    @property
+    def state(self) -> str | None: ...
+
+
+class SampledSwarm(Protocol):
+    """What `SimRecorder` reads of a run: a `Simulation`, or one split across workers."""
+
+    config: SimConfig
+    frame: geo.LocalFrame
+    radio: RadioModel
+    tick: int
+
+    @property
+    def robots(self) -> Mapping[int, _Sampled]: ...
+
+
 class SimRecorder:
     """Samples a `Simulation` into `Tracks`: positions and states every simulated second (and
     at the last tick), the bytes each robot put on the air per step in between."""
 
-    def __init__(self, sim: Simulation) -> None:
+    def __init__(self, sim: SampledSwarm) -> None:
         from fieldkit.sim.simulator import TICK_S
 
         self.sim = sim
