@@ -124,9 +124,11 @@ def run_cmd(
     from fieldkit.errors import FieldkitError
     from fieldkit.sim.simulator import (
         ConfigError,
+        CROWD,
         SimConfig,
         Simulation,
         default_spacing,
+        in_range,
     )
     from fieldkit.sim.updates import SimUpdate
 
@@ -182,6 +184,16 @@ def run_cmd(
         except FieldkitError as e:  # a bag of that name exists already
             raise fail(e) from None
     warn_if_insecure(mode)
+    crowd = in_range(robots, range_m, config.spacing_m)
+    if crowd > 1.25 * CROWD:  # the default grid itself has about CROWD (rounding: a few more)
+        # Every tick costs about robots x crowd receptions and neighbour entries.
+        typer.echo(
+            f"warning: about {crowd:.0f} robots in each robot's {range_m:g} m range "
+            f"(--spacing {config.spacing_m:g}): a large swarm runs slowly; a wider "
+            "--spacing or a shorter --range keeps it near the default's "
+            f"{CROWD}",
+            err=True,
+        )
     from fieldkit.sim.tracks import SimRecorder, write_tracks
 
     recorder = SimRecorder(sim)
