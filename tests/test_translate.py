@@ -666,7 +666,6 @@ def test_the_conformance_corpus_runs_the_same_translated_ahead(script: Path) -> 
     assert (lines, outcome) == run(program, False)
 
 
-
 def test_vms_share_a_translation_only_when_it_read_the_same_of_them() -> None:
     """A translation made for one VM is reused by another VM of the program when what it
     read of it (global g: a host function it calls directly) is alike, never otherwise."""

@@ -123,8 +123,8 @@ def run_cmd(
     """Run SCRIPT on N simulated robots: OUT/summary.json, log.txt, trajectories.csv, plot.png."""
     from fieldkit.errors import FieldkitError
     from fieldkit.sim.simulator import (
-        ConfigError,
         CROWD,
+        ConfigError,
         SimConfig,
         Simulation,
         default_spacing,
