@@ -141,7 +141,7 @@ def mission_scenario(mission: str, robots: int, seconds: float) -> SimConfig:
 def _phase(sim: Simulation) -> str:
     """The phase of the swarm: that of its least advanced robot."""
     states = {r.state for r in sim.robots.values()}
-    if states & _GROUND:
+    if states & _GROUND or None in states:  # None: before the first step
         return "takeoff"
     if states & _WAITING:
         return "barrier"
@@ -175,7 +175,8 @@ def mission_rate(mission: str, robots: int) -> tuple[float, dict[str, float], fl
         cpu[phase] += time.process_time() - t1
         if end is None and phase == "behaviour":
             if mission == "coverage":
-                end = sim.tick + round(COVER_S / TICK_S)
+                if all(r.state == "DEPLOY" for r in sim.robots.values()):
+                    end = sim.tick + round(COVER_S / TICK_S)
             elif _labels_held(sim) >= tasks:
                 end = sim.tick
                 outcome = f"{TA_SHAPE} formed"
