@@ -105,8 +105,8 @@ def translate(
     # Another VM of this program may have made this translation already (shared.py).
     cache = options.cache
     cache.make_room()
-    key = (addr, n_actrec, nargs, toplevel, speculate, options.self_calls)
-    key += (options.chunked_loops, cache.generation)
+    flags = (options.self_calls, options.chunked_loops)
+    key = (addr, n_actrec, nargs, toplevel, speculate, flags, cache.generation)
     variants = cache.shared.variants(vm.program, key)
     for shared in variants:
         if shared.replay(vm):
