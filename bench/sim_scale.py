@@ -1,6 +1,7 @@
 """The largest swarm the simulator runs at real time on one core, with the coverage behavior.
 
     python bench/sim_scale.py [--sizes 750,1000,1250] [--measure 7]
+    python bench/sim_scale.py --mission task-allocation|coverage [--sizes 250,500,1000] [--at M]
 
 Real time: 10 ticks per simulated second for every robot, so a swarm of N robots runs at
 real time when one tick of all N robots takes at most 0.1 s. For each size the robots take
@@ -17,6 +18,35 @@ the two sizes that bracket 10 ticks/s (or the largest size measured, if all are 
 Robots start on a grid at the density of the deployment (one per 150 m², 12.2 m apart) with
 a 20 m radio range, so each hears about 8 others, as in the deployed swarm; the radio drops
 nothing (losses make less traffic).
+
+With `--mission`, the whole mission instead, from the ground, on the same start grid and radio:
+RC 22 (takeoff) to robot 1 at 0.5 s, then the behaviour's code at 6 s, the command's barrier,
+the behaviour, to its end:
+
+- coverage: the four hotspots as above, RC 901; the end is COVER_S simulated seconds after
+  the last robot enters DEPLOY.
+- task-allocation: RC 900 with the graph P (6 tasks, ROOT_ID robot 1 in the grid's corner):
+  6 robots take a task, every other one stays FREE (a reserve that closes in on the nodes
+  about to open, and keeps scanning what it hears), the case of a swarm much larger than its
+  task graph. The end is the shape formed: every label held by a robot JOINED or LOCK. (The
+  paper's larger graphs are no fit for a 20 m range: YLOPPOLY is 128 m long, and its far
+  labels' predecessors are out of range of the robots that could take them; in a trial
+  250 robots had not formed it 240 s after the command.) A run that has not formed it
+  MISSION_CAP_S after the command stops there, reported as "not done".
+
+For each size it prints the ticks per second over the whole run (CPU process time of this
+process, building the simulation and translating every robot's script included: one core),
+the same as a multiple of real time, the CPU seconds of each phase (start-up: building the
+simulation; takeoff: while any robot is still TURNEDOFF or TAKEOFF; barrier: then while any
+is in BARRIERWAIT or IDLE, the takeoff's and the command's barriers; behaviour: every robot
+in the behaviour's states), the simulated seconds, and the outcome. Its last line is
+
+    whole mission: N robots at >= real time (R ticks/s at M robots)
+
+N the largest swarm whose whole mission runs at 10 ticks/s or more, interpolated as the
+steady state's is between the two measured sizes that bracket 10 ticks/s (0 if no size
+does; the largest measured if all do); R the measured ticks per second at M robots, the
+largest size measured unless `--at M` names another measured size.
 """
 
 from __future__ import annotations
@@ -47,6 +77,19 @@ SETTLE_S = 6.0  # after the last robot deploys at least: the barrier lingers 50 
 QUIET = 3.0  # messages received per robot per step: the coverage alone receives ~1.7
 MAX_GOSSIP_S = 120.0
 
+# --mission
+TA_SCRIPT = ROOT / "buzz_scripts" / "task_allocation.bzz"
+TA_SHAPE = "P"  # 6 tasks within 12 m of the root: it forms in range of one another
+TA_TASKS = 6
+MISSION_TAKEOFF_S = 0.5
+MISSION_COMMAND_S = 6.0
+COVER_S = 10.0  # coverage after the last robot deploys
+MISSION_CAP_S = 240.0  # after the command: a mission not done by then is reported as such
+MISSIONS = ("task-allocation", "coverage")
+PHASES = ("start-up", "takeoff", "barrier", "behaviour")
+_GROUND = frozenset({"TURNEDOFF", "TAKEOFF"})
+_WAITING = frozenset({"BARRIERWAIT", "IDLE"})
+
 
 def scenario(robots: int, seconds: float) -> SimConfig:
     """Takeoff, four hotspots around the swarm's start, then DEPLOY."""
@@ -70,6 +113,79 @@ def scenario(robots: int, seconds: float) -> SimConfig:
         include_dirs=(str(ROOT / "buzz_scripts"),),
         seed=1,
     )
+
+
+def mission_scenario(mission: str, robots: int, seconds: float) -> SimConfig:
+    """The whole `mission` from the ground: RC 22, then the behaviour's code (see the top)."""
+    if mission == "coverage":
+        config = scenario(robots, seconds)
+        config.commands = [
+            RcCommand(MISSION_TAKEOFF_S, 1, 22),
+            *config.commands[1:-1],
+            RcCommand(MISSION_COMMAND_S, 1, 901),
+        ]
+        return config
+    return SimConfig(
+        script=TA_SCRIPT,
+        robots=robots,
+        seconds=seconds,
+        range_m=RANGE_M,
+        spacing_m=SPACING_M,
+        commands=[RcCommand(MISSION_TAKEOFF_S, 1, 22), RcCommand(MISSION_COMMAND_S, 1, 900)],
+        include_dirs=(str(ROOT / "buzz_scripts"),),
+        globals={"SHAPE": TA_SHAPE},
+        seed=1,
+    )
+
+
+def _phase(sim: Simulation) -> str:
+    """The phase of the swarm: that of its least advanced robot."""
+    states = {r.state for r in sim.robots.values()}
+    if states & _GROUND or None in states:  # None: before the first step
+        return "takeoff"
+    if states & _WAITING:
+        return "barrier"
+    return "behaviour"
+
+
+def _labels_held(sim: Simulation) -> int:
+    """How many distinct labels of the task graph robots hold, JOINED or LOCK."""
+    labels = set()
+    for r in sim.robots.values():
+        if r.state == "JOINED" or r.state == "LOCK":
+            labels.add(r.vm.globals.get("TA_LABEL"))
+    return len(labels)
+
+
+def mission_rate(mission: str, robots: int) -> tuple[float, dict[str, float], float, str]:
+    """CPU-time ticks per second of the whole `mission` at `robots`; the CPU seconds of each
+    phase; the simulated seconds; the outcome."""
+    cap = round((MISSION_COMMAND_S + MISSION_CAP_S) / TICK_S)
+    cpu = dict.fromkeys(PHASES, 0.0)
+    t0 = time.process_time()
+    sim = Simulation(mission_scenario(mission, robots, 1e6))
+    cpu["start-up"] = time.process_time() - t0
+    tasks = min(robots, TA_TASKS)  # a smaller swarm never forms it: "not done"
+    end: int | None = None
+    outcome = "not done"
+    while sim.tick < cap:
+        phase = _phase(sim)
+        t1 = time.process_time()
+        sim.step()
+        cpu[phase] += time.process_time() - t1
+        if end is None and phase == "behaviour":
+            if mission == "coverage":
+                if all(r.state == "DEPLOY" for r in sim.robots.values()):
+                    end = sim.tick + round(COVER_S / TICK_S)
+            elif _labels_held(sim) >= tasks:
+                end = sim.tick
+                outcome = f"{TA_SHAPE} formed"
+        if end is not None and sim.tick >= end:
+            if mission == "coverage":
+                outcome = "covered"
+            break
+    total = time.process_time() - t0
+    return sim.tick / total, cpu, sim.tick * TICK_S, outcome
 
 
 def ticks_per_second(robots: int, measure_s: float) -> tuple[float, float, float, dict[str, int]]:
@@ -113,15 +229,66 @@ def ticks_per_second(robots: int, measure_s: float) -> tuple[float, float, float
     return statistics.median(rates), sim.tick / (t2 - t0), gossip_s, states
 
 
+def largest_real_time(results: list[tuple[int, float]]) -> int:
+    """The largest swarm at >= 10 ticks/s: interpolated between the two measured sizes
+    that bracket it (the largest measured if all are real time; 0 if none is)."""
+    fast = [(n, t) for n, t in results if t >= 1 / TICK_S]
+    slow = [(n, t) for n, t in results if t < 1 / TICK_S]
+    if not fast:
+        return 0
+    if not slow or slow[0][0] < fast[-1][0]:
+        return fast[-1][0]
+    # The time of one tick grows about linearly with N: interpolate N at 0.1 s a tick.
+    (n1, t1), (n2, t2) = fast[-1], slow[0]
+    s1, s2 = 1 / t1, 1 / t2
+    return int(n1 + (TICK_S - s1) * (n2 - n1) / (s2 - s1))
+
+
+def main_mission(mission: str, sizes: list[int], at: int | None) -> None:
+    """Measure the whole mission at each size; the last line says the largest real-time one."""
+    results: list[tuple[int, float]] = []
+    print(
+        f"{'robots':>7s} {'ticks/s':>8s} {'x real time':>12s} "
+        + " ".join(f"{p:>10s}" for p in PHASES)
+        + f" {'sim s':>6s}  outcome"
+    )
+    for n in sizes:
+        with tuned_collector():  # as `Simulation.run` steps
+            tps, cpu, simulated, outcome = mission_rate(mission, n)
+        results.append((n, tps))
+        print(
+            f"{n:7d} {tps:8.2f} {tps * TICK_S:12.2f} "
+            + " ".join(f"{cpu[p]:9.1f}s" for p in PHASES)
+            + f" {simulated:6.1f}  {outcome}",
+            flush=True,
+        )
+    m, r = next((n, t) for n, t in results if n == (sizes[-1] if at is None else at))
+    print(
+        f"whole mission: {largest_real_time(results)} robots at >= real time "
+        f"({r:.2f} ticks/s at {m} robots)"
+    )
+
+
 def main() -> None:
     """Measure each size and print the largest real-time swarm."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sizes", default="750,1000,1250")
+    ap.add_argument("--sizes", default=None, help="default 750,1000,1250 (--mission: 250,500,1000)")
     ap.add_argument(
         "--measure", type=float, default=7.0, help="simulated seconds measured (1 s windows)"
     )
+    ap.add_argument("--mission", choices=MISSIONS, help="the whole mission from the ground")
+    ap.add_argument("--at", type=int, help="--mission: the size the last line quotes")
     args = ap.parse_args()
-    sizes = sorted(int(s) for s in args.sizes.split(","))
+    default = "250,500,1000" if args.mission else "750,1000,1250"
+    try:
+        sizes = sorted({int(s) for s in (args.sizes or default).split(",")})
+    except ValueError:
+        ap.error(f"--sizes: a comma-separated list of robot counts, got {args.sizes!r}")
+    if args.at is not None and args.at not in sizes:
+        ap.error(f"--at {args.at}: not one of the sizes measured ({args.sizes or default})")
+    if args.mission:
+        main_mission(args.mission, sizes, args.at)
+        return
     results: list[tuple[int, float]] = []
     print(
         f"{'robots':>7s} {'ticks/s':>8s} {'x real time':>12s} {'whole run':>10s}"
@@ -134,18 +301,7 @@ def main() -> None:
         print(
             f"{n:7d} {tps:8.2f} {tps * TICK_S:12.2f} {whole * TICK_S:10.2f} {gossip:9.1f}  {states}"
         )
-    fast = [(n, t) for n, t in results if t >= 1 / TICK_S]
-    slow = [(n, t) for n, t in results if t < 1 / TICK_S]
-    if not fast:
-        best = 0
-    elif not slow or slow[0][0] < fast[-1][0]:
-        best = fast[-1][0]
-    else:
-        # The time of one tick grows about linearly with N: interpolate N at 0.1 s a tick.
-        (n1, t1), (n2, t2) = fast[-1], slow[0]
-        s1, s2 = 1 / t1, 1 / t2
-        best = int(n1 + (TICK_S - s1) * (n2 - n1) / (s2 - s1))
-    print(f"largest swarm at real time on one core: {best} robots")
+    print(f"largest swarm at real time on one core: {largest_real_time(results)} robots")
 
 
 if __name__ == "__main__":

@@ -200,3 +200,13 @@ def test_progress_off_a_terminal_is_a_line_every_tenth(
 def test_default_home_is_documented() -> None:
     cli = (Path(__file__).resolve().parents[1] / "docs" / "cli.md").read_text()
     assert f"{DEFAULT_HOME[0]},{DEFAULT_HOME[1]}" in cli
+
+
+def test_a_crowded_start_grid_is_warned_about_and_the_default_is_not(tmp_path: Path) -> None:
+    """100 robots 3 m apart all hear each other at 500 m: that crawls, and `sim run` says so;
+    on the default grid (spread for the range) it is quiet."""
+    code, _, stderr, _ = sim_run(tmp_path, "--robots", "100", "--seconds", "0.1", "--spacing", "3")
+    assert code == 0, stderr
+    assert "warning: about 99 robots in each robot's 500 m range" in stderr, stderr
+    code, _, stderr, _ = sim_run(tmp_path, "--robots", "100", "--seconds", "0.1")
+    assert code == 0 and "warning: about" not in stderr, stderr

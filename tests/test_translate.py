@@ -664,3 +664,23 @@ def test_the_conformance_corpus_runs_the_same_translated_ahead(script: Path) -> 
         pytest.skip("a compile-error case")
     lines, outcome, _ = run_prepared(program)
     assert (lines, outcome) == run(program, False)
+
+
+def test_vms_share_a_translation_only_when_it_read_the_same_of_them() -> None:
+    """A translation made for one VM is reused by another VM of the program when what it
+    read of it (global g: a host function it calls directly) is alike, never otherwise."""
+    src = "function h(x) {\n  return x + 1\n}\nfunction f(x) {\n  return g(x)\n}\n"
+    program = bvm.compile_source(src, "reads.bzz")
+    options = TranslateOptions(cache=CodeCache())
+    vms = []
+    for g in ("isint", "h", "isint"):
+        vm = bvm.VM(translate_options=options)
+        vm.load(program)
+        vm.execute()
+        vm["g"] = vm.gload(g)
+        vms.append(vm)
+    # In turn: the first translates, the second (g a script function) must not take the
+    # first's direct call of isint, the third reuses the first's.
+    assert [vm.call("f", 2.5) for vm in vms] == [0, 3.5, 0]
+    codes = [vm.entry(vm.gload("f").ref, 1).for_call((2.5,)).__code__ for vm in vms]
+    assert codes[0] is codes[2] and codes[1] is not codes[0]

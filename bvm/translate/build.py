@@ -9,6 +9,7 @@ into LINE_MAPS so errors can be located and call stacks told.
 from __future__ import annotations
 
 from collections.abc import Callable
+from types import CodeType
 from typing import Any
 
 from bvm.program import Instruction
@@ -19,6 +20,65 @@ from bvm.translate.host import TranslatorHost
 from bvm.translate.lattice import ANY, GUARD_CLASS
 from bvm.translate.options import DEFAULT_OPTIONS, TranslateOptions
 from bvm.translate.selfcall import DEOPT_ONLY, SelfCall, candidates
+from bvm.translate.shared import MAX_VARIANTS, Recorder, Shared, resolve
+
+
+class Built:
+    """A compiled translation, ready to install in any VM of its program: the code, the
+    names it defines, its line map and how to find each constant it binds."""
+
+    __slots__ = ("code", "fname", "bname", "sc_name", "line_map", "recipes")
+
+    def __init__(
+        self,
+        code: CodeType,
+        fname: str,
+        bname: str | None,
+        sc_name: str | None,
+        line_map: LineMap,
+        recipes: dict[str, tuple[Any, ...] | None],
+    ) -> None:
+        self.code = code
+        self.fname = fname
+        self.bname = bname  # the unguarded body's own name, if it has one
+        self.sc_name = sc_name  # the name direct self-calls call
+        self.line_map = line_map
+        self.recipes = recipes
+
+    def constants(self, vm: TranslatorHost) -> dict[str, Any]:
+        """The constants this translation binds, found in `vm`."""
+        out: dict[str, Any] = {}
+        for name, recipe in self.recipes.items():
+            assert recipe is not None  # a Built with an unknown constant is never shared
+            kind = recipe[0]
+            if kind == "value":
+                out[name] = recipe[1]
+            elif kind == "path":
+                out[name] = resolve(vm, recipe[1])
+            elif kind == "owner":
+                out[name] = resolve(vm, recipe[1]).actrec[0]
+            elif kind == "impl":
+                out[name] = vm.native_impl(recipe[1])[0]
+            elif kind == "entry":
+                out[name] = vm.entry(recipe[1], recipe[2])
+            else:  # general
+                out[name] = vm.entry(recipe[1], recipe[2]).call_general
+        return out
+
+    def install(self, vm: TranslatorHost, consts: dict[str, Any]) -> Callable[..., Any]:
+        """Define the translation in `vm`'s namespace with `consts`; its function."""
+        namespace = vm.namespace()
+        for key, value in consts.items():
+            namespace.setdefault(key, value)
+        local: dict[str, Any] = {}
+        exec(self.code, namespace, local)
+        f: Callable[..., Any] = local[self.fname]
+        LINE_MAPS[f.__code__] = self.line_map
+        if self.sc_name is not None:
+            body = local[self.bname] if self.bname is not None else f
+            LINE_MAPS[body.__code__] = self.line_map
+            namespace[self.sc_name] = body
+        return f
 
 
 def translate(
@@ -40,6 +100,44 @@ def translate(
     """
     if vm.program is None:
         raise NotStructured("no program loaded")
+    if not options.share_translations:
+        return _translate(vm, addr, n_actrec, nargs, toplevel, speculate, options)[0]
+    # Another VM of this program may have made this translation already (shared.py).
+    cache = options.cache
+    cache.make_room()
+    flags = (options.self_calls, options.chunked_loops)
+    key = (addr, n_actrec, nargs, toplevel, speculate, flags, cache.generation)
+    variants = cache.shared.variants(vm.program, key)
+    for shared in variants:
+        if shared.replay(vm):
+            if isinstance(shared.result, NotStructured):
+                raise NotStructured(str(shared.result))
+            built: Built = shared.result
+            return built.install(vm, built.constants(vm))
+    recorder = Recorder(vm)
+    try:
+        f, built = _translate(recorder, addr, n_actrec, nargs, toplevel, speculate, options)
+    except NotStructured as e:
+        if recorder.shareable and len(variants) < MAX_VARIANTS:
+            variants.append(Shared(recorder.reads, e))
+        raise
+    shareable = recorder.shareable and None not in built.recipes.values()
+    if shareable and len(variants) < MAX_VARIANTS and key[-1] == cache.generation:
+        variants.append(Shared(recorder.reads, built))
+    return f
+
+
+def _translate(
+    vm: TranslatorHost,
+    addr: int,
+    n_actrec: int,
+    nargs: int,
+    toplevel: bool,
+    speculate: tuple[str, ...] | None,
+    options: TranslateOptions,
+) -> tuple[Callable[..., Any], Built]:
+    """translate(), from scratch."""
+    assert vm.program is not None
     instrs = discover(vm.program, addr)
     if instrs[0].addr != addr:
         # Hand-made code that jumps back before its entry: regions run from the lowest
@@ -77,7 +175,7 @@ def _build(
     nargs: int,
     speculate: tuple[str, ...] | None,
     options: TranslateOptions,
-) -> Callable[..., Any]:
+) -> tuple[Callable[..., Any], Built]:
     """Compile a generated function (and its unguarded body, if it calls itself directly)."""
     first = addr = instrs[0].addr
     cache = options.cache
@@ -125,7 +223,7 @@ def _build(
         prologue = list(unpack)
         if guards:
             general = f"_g{addr}_{n_actrec}_{nargs}"
-            gen.consts[general] = vm.entry(addr, n_actrec).call_general
+            gen.bind(general, vm.entry(addr, n_actrec).call_general, ("general", addr, n_actrec))
             prologue.insert(0, f"if {' or '.join(guards)}: return {general}(_C{params})")
         define(f"def {fname}(_C{params}):", prologue, False)
         # The unguarded body that direct self-calls enter: a copy, so that entering
@@ -135,16 +233,12 @@ def _build(
             define(f"def {bname}(_C{params}):", unpack, True)
     text = "\n".join(source) + "\n"
     code = cache.compiled(text, (*offsets, *ops), f"<buzz:{gen.program.path}@{addr}:{gen.key}")
-    namespace = vm.namespace()
-    for key, value in gen.consts.items():
-        namespace.setdefault(key, value)
-    local: dict[str, Any] = {}
-    exec(code, namespace, local)
-    f: Callable[..., Any] = local[fname]
-    line_map = LineMap(first, gen.toplevel, offsets, ops)
-    LINE_MAPS[f.__code__] = line_map
-    if sc is not None:
-        body = local[bname] if twice else f
-        LINE_MAPS[body.__code__] = line_map
-        namespace[sc.name] = body
-    return f
+    built = Built(
+        code,
+        fname,
+        bname if twice else None,
+        None if sc is None else sc.name,
+        LineMap(first, gen.toplevel, offsets, ops),
+        gen.recipes,
+    )
+    return built.install(vm, gen.consts), built

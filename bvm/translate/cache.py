@@ -15,6 +15,7 @@ import weakref
 from types import CodeType
 
 from bvm.translate.controlflow import NotStructured
+from bvm.translate.shared import SharedStore
 
 #: A line map's instruction for the lines a generated function runs before its body (its
 #: `def`, entry guard and prologue): no instruction of its own.
@@ -56,11 +57,14 @@ class CodeCache:
         # remove the entry; so a copy compiled after a clear (or by another cache) must
         # not equal one still alive.
         self.generation = next(_generations)
+        #: Whole translations, shared by the VMs of one program (shared.py).
+        self.shared = SharedStore()
 
     def make_room(self) -> None:
         """Clear the cache when full, starting a new generation of names."""
         if len(self._code) >= self.max_size:
             self._code.clear()
+            self.shared.clear()
             self.generation = next(_generations)
 
     def compiled(self, text: str, offsets: tuple[int, ...], name: str) -> CodeType:

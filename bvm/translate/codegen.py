@@ -119,6 +119,9 @@ class Codegen:
         self.dead = False
         self.ntemps = 0
         self.consts: dict[str, Any] = {}
+        # How to find each constant in another VM of the same program (shared.py); None
+        # when one cannot be found there (the translation is then not shared).
+        self.recipes: dict[str, tuple[Any, ...] | None] = {}
         self.counters: list[str] = []  # the loop-iteration counters of the enclosing loops
         self.used_locals: set[int] = set()
         self.global_names: set[str] = set()
@@ -154,6 +157,16 @@ class Codegen:
         """A new module-global name for a constant this translation binds."""
         return f"{prefix}{self.key}_{next(self._names)}"
 
+    def bind(self, name: str, value: Any, recipe: tuple[Any, ...] | None) -> None:
+        """Bind constant `name` to `value`, found in another VM by `recipe`."""
+        self.consts[name] = value
+        self.recipes[name] = recipe
+
+    def path_of(self, value: Any) -> tuple[Any, ...] | None:
+        """How the host read `value` (a recording host only, see shared.py)."""
+        path_of = getattr(self.vm, "path_of", None)
+        return None if path_of is None else path_of(value)
+
     def pop(self) -> Expr:
         """Pop a symbolic entry; NotStructured on underflow (hand-made bytecode)."""
         if not self.stack:
@@ -169,7 +182,7 @@ class Codegen:
         if value.__class__ is float and (math.isinf(value) or value != value or value == 0.0):
             # inf, NaN (keeping its sign bit) and -0.0 have no exact literal: bind the object
             name = self.fresh("_k")
-            self.consts[name] = value
+            self.bind(name, value, ("value", value))
             self.push(name, ty, value)
         else:
             # A negative literal is parenthesized: `-2.5.__class__` would negate the class.
@@ -833,7 +846,8 @@ class Codegen:
             self.emit(f"{t} = {tc}[{kv}]", at, SHIFTED)
         origin = None
         if tab.origin.__class__ is Table and k.ty in (STR, INT):
-            origin = tab.origin.get(k.const)
+            member = getattr(self.vm, "member", None)  # a recording host notes the read
+            origin = tab.origin.get(k.const) if member is None else member(tab.origin, k.const)
         self.stack.append(Expr(t, origin=origin))
 
     def tput(self, ins: Instruction) -> None:
@@ -904,13 +918,14 @@ class Codegen:
         if impl is None or (arity is not None and arity != len(args)):
             return False
         guard = self.fresh("_nc")
-        self.consts[guard] = closure
+        path = self.path_of(closure)
+        self.bind(guard, closure, None if path is None else ("path", path))
         call = f"_ni{closure.ref}"
-        self.consts[call] = impl
+        self.bind(call, impl, ("impl", closure.ref))
         owner = "None"
         if closure.actrec[0] is not None:
             owner = self.fresh("_ns")
-            self.consts[owner] = closure.actrec[0]
+            self.bind(owner, closure.actrec[0], None if path is None else ("owner", path))
         argv = "".join(f", {self.val(a)}" for a in args)
         cc = c.code
         direct = f"{call}({owner}{argv})"
@@ -974,7 +989,7 @@ class Codegen:
     def entry_name(self, addr: int, size: int) -> str:
         """Bind the entry of the function at `addr` for `size` captured slots."""
         name = f"_e{addr}_{size}"
-        self.consts[name] = self.vm.entry(addr, size)
+        self.bind(name, self.vm.entry(addr, size), ("entry", addr, size))
         return name
 
 

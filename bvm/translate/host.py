@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 from bvm.program import Program
@@ -24,8 +24,11 @@ class TranslatorHost(Protocol):
     entries that translated code calls into."""
 
     program: Program | None
-    #: The Buzz globals; their values at translation time guide direct native calls.
-    globals: dict[str, Any]
+
+    @property
+    def globals(self) -> Mapping[str, Any]:
+        """The Buzz globals; their values at translation time guide direct native calls."""
+        ...
 
     def native_impl(self, fid: int) -> tuple[Callable[..., Any] | None, int | None]:
         """The implementation and fixed arity (None: any) of host function `fid`."""

@@ -19,6 +19,8 @@ class TranslateOptions:
     self_calls: bool = True
     #: Outer loops count iterations by a `for` over one budget chunk (see codegen).
     chunked_loops: bool = True
+    #: VMs of one program reuse each other's translations (see shared.py).
+    share_translations: bool = True
     #: Where compiled translations are kept; VMs sharing one share compiled code.
     cache: CodeCache = field(default=SHARED_CACHE, compare=False)
 

@@ -145,10 +145,12 @@ def run_cmd(
     """Run SCRIPT on N simulated robots: OUT/summary.json, log.txt, trajectories.csv, plot.png."""
     from fieldkit.errors import FieldkitError
     from fieldkit.sim.simulator import (
+        CROWD,
         ConfigError,
         SimConfig,
         Simulation,
         default_spacing,
+        in_range,
     )
     from fieldkit.sim.updates import SimUpdate
 
@@ -200,6 +202,16 @@ def run_cmd(
         sim = Simulation(config) if workers is None and scheduler is None else None
     except (ConfigError, BuzzCompileError) as e:
         raise fail(e) from None
+    crowd = in_range(robots, range_m, config.spacing_m)
+    if crowd > 1.25 * CROWD:  # the default grid itself has about CROWD (rounding: a few more)
+        # Every tick costs about robots x crowd receptions and neighbour entries.
+        typer.echo(
+            f"warning: about {crowd:.0f} robots in each robot's {range_m:g} m range "
+            f"(--spacing {config.spacing_m:g}): a large swarm runs slowly; a wider "
+            "--spacing or a shorter --range keeps it near the default's "
+            f"{CROWD}",
+            err=True,
+        )
     if sim is None:
         warn_if_insecure(mode)
         _run_split(config, workers, scheduler, out, script, globals_, (lat, lon))

@@ -86,6 +86,12 @@ def default_spacing(robots: int, range_m: float) -> float:
     return round(range_m * math.sqrt(math.pi / CROWD), 1)
 
 
+def in_range(robots: int, range_m: float, spacing_m: float) -> float:
+    """About how many others each robot of a start grid of pitch `spacing_m` has in radio
+    range: what the ticks of a large swarm cost grows with (receptions, neighbour tables)."""
+    return min(robots - 1.0, math.pi * range_m**2 / spacing_m**2)
+
+
 def log_line(t: float, robot: int, text: str) -> str:
     """One line of a log: simulated time (fixed width, ms) and robot id before the text."""
     return f"[{t:9.3f} s] robot {robot}: {text}"
@@ -859,6 +865,7 @@ __all__ = [
     "SPACING_M",
     "CROWD",
     "default_spacing",
+    "in_range",
     "log_line",
     "start_grid",
     "tuned_collector",
