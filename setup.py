@@ -4,8 +4,9 @@ The rest of the build configuration is in pyproject.toml. This file exists for o
 pyproject.toml cannot say: `packages.find` names a package by the folder it sits in, while the
 device profiles, Buzz scripts and systemd templates stay at the repository's top level (where
 users, docs and tests look for them) yet must install inside fieldkit, as
-`fieldkit.device_profiles`, `fieldkit.buzz_scripts` and `fieldkit.systemd`, so that `importlib.resources` finds them in a wheel and in the
-editable install alike (see fieldkit/resources.py).
+`fieldkit.device_profiles`, `fieldkit.buzz_scripts` and `fieldkit.systemd`, so that
+`importlib.resources` finds them in a wheel and in the editable install alike (see
+fieldkit/resources.py).
 """
 
 from setuptools import find_namespace_packages, setup
