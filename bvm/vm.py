@@ -471,10 +471,7 @@ class VM:
                 return impl(c.actrec[0], *args)
 
         else:
-            params = "".join(f", a{k}" for k in range(arity))
-            namespace = {"impl": impl}
-            exec(f"def fn(c{params}): return impl(c.actrec[0]{params})", namespace)
-            fn = namespace["fn"]
+            fn = _fixed_arity_maker(arity)(impl)
         fn.__name__ = fn.__qualname__ = f"native_{name}"
         closure = Closure(fid, True, (None,), fn)
         self.natives.append(closure)
@@ -747,7 +744,53 @@ def _stack(program: Program, frames: list[_Frame]) -> list[StackEntry]:
     return stack
 
 
+#: Arity -> a function making the native wrapper of that arity for an impl. Compiled once:
+#: every robot of a swarm makes about a hundred natives, and an exec each was a third of
+#: starting a swarm.
+_MAKERS: dict[int, Callable[[Callable[..., Any]], Callable[..., Any]]] = {}
+
+
+def _fixed_arity_maker(arity: int) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """`make(impl)` -> `fn(c, a0, .., a{arity-1})` calling `impl(c.actrec[0], a0, ..)`."""
+    make = _MAKERS.get(arity)
+    if make is None:
+        params = "".join(f", a{k}" for k in range(arity))
+        namespace: dict[str, Any] = {}
+        exec(
+            f"def make(impl):\n def fn(c{params}): return impl(c.actrec[0]{params})\n return fn",
+            namespace,
+        )
+        make = _MAKERS[arity] = namespace["make"]
+    return make
+
+
+#: (code object, defaults given, bound) -> arity range. Every robot of a swarm registers its
+#: own closures and bound methods of the same few functions: inspect.signature for each was
+#: 15% of starting a thousand robots.
+_ARITY: dict[tuple[object, int, bool], tuple[int, int | None]] = {}
+
+
 def _arity_range(func: Callable[..., Any]) -> tuple[int, int | None]:
+    """How many positional arguments `func` takes: (at least, at most or None)."""
+    bound = inspect.ismethod(func)
+    plain = getattr(func, "__func__", func) if bound else func
+    code = getattr(plain, "__code__", None)
+    if (
+        code is None
+        or type(plain).__name__ != "function"
+        # A decorator's wrapper shares its code across the functions it wraps.
+        or hasattr(plain, "__wrapped__")
+        or hasattr(plain, "__signature__")
+    ):
+        return _arity_of_signature(func)
+    key = (code, len(getattr(plain, "__defaults__", None) or ()), bound)
+    found = _ARITY.get(key)
+    if found is None:
+        found = _ARITY[key] = _arity_of_signature(func)
+    return found
+
+
+def _arity_of_signature(func: Callable[..., Any]) -> tuple[int, int | None]:
     try:
         sig = inspect.signature(func)
     except (TypeError, ValueError):

@@ -86,6 +86,35 @@ def test_register_wrong_argument_count_is_a_buzz_error() -> None:
         vm.call("go")
 
 
+def test_argument_counts_are_checked_alike_for_shared_code_and_wrappers() -> None:
+    # The counts are cached by code object (every robot registers closures of the same few
+    # functions): closures of one def share them, wrappers of different functions do not.
+    import functools
+
+    def wrap(f):  # type: ignore[no-untyped-def]
+        @functools.wraps(f)
+        def wrapper(*args):  # type: ignore[no-untyped-def]
+            return f(*args)
+
+        return wrapper
+
+    def factory(k: int):  # type: ignore[no-untyped-def]
+        def add(x, y):  # type: ignore[no-untyped-def]
+            return x + y + k
+
+        return add
+
+    for one, two in ((factory(1), factory(2)), (wrap(lambda x: x), wrap(lambda x, y: x))):
+        for f, good, bad in ((one, "f(1, 2)", "f(1)"), (two, "f(1, 2)", "f(1, 2, 3)")):
+            if f is one and one.__name__ == "<lambda>":
+                good, bad = "f(1)", "f(1, 2)"
+            vm, _ = make_vm(f"function ok() {{ return {good} }}\nfunction ko() {{ return {bad} }}")
+            vm.register("f", f)
+            vm.call("ok")
+            with pytest.raises(bvm.BuzzError, match=r"f\(\) expected"):
+                vm.call("ko")
+
+
 def test_host_exception_becomes_located_buzz_error() -> None:
     vm, _ = make_vm("function go() {\n  return boom()\n}")
     vm.register("boom", lambda: 1 / 0)
