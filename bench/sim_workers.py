@@ -22,43 +22,15 @@ ratios, not the absolute speeds.
 from __future__ import annotations
 
 import argparse
-import math
+import sys
 import time
 from pathlib import Path
 
-from fieldkit.robot import geo
 from fieldkit.sim.distributed import DistributedSimulation
-from fieldkit.sim.simulator import DEFAULT_ORIGIN, TICK_S, RcCommand, SimConfig, Simulation
+from fieldkit.sim.simulator import TICK_S, Simulation
 
-ROOT = Path(__file__).resolve().parent.parent
-SCRIPT = ROOT / "buzz_scripts" / "coverage.bzz"
-AREA_PER_ROBOT_M2 = 150.0
-SPACING_M = math.sqrt(AREA_PER_ROBOT_M2)  # 12.2 m: the deployed density
-RANGE_M = 20.0  # each robot hears about 8 others
-DEPLOY_AT_S = 8.0
-
-
-def scenario(robots: int, seconds: float) -> SimConfig:
-    """Takeoff, four hotspots around the swarm's start, then DEPLOY (as bench/sim_scale.py)."""
-    frame = geo.LocalFrame(*DEFAULT_ORIGIN)
-    side = math.sqrt(robots * AREA_PER_ROBOT_M2)
-    centre = math.ceil(math.sqrt(robots)) * SPACING_M / 2.0
-    commands = [RcCommand(0.5, 1, 22)]
-    for k, (dx, dy) in enumerate(((-1, -1), (1, -1), (1, 1), (-1, 1))):
-        east, north = centre + dx * side / 2.0, centre + dy * side / 2.0
-        lat, lon, _ = frame.to_gps(east, north, 0.0)
-        commands.append(RcCommand(1.0 + 0.2 * k, 1, 16, (50.0 + k, lat, lon, 0.0)))
-    commands.append(RcCommand(DEPLOY_AT_S - 2.0, 1, 901))
-    return SimConfig(
-        script=SCRIPT,
-        robots=robots,
-        seconds=seconds,
-        range_m=RANGE_M,
-        spacing_m=SPACING_M,
-        commands=commands,
-        include_dirs=(str(ROOT / "buzz_scripts"),),
-        seed=1,
-    )
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the scale bench's scenario
+from sim_scale import scenario  # noqa: E402
 
 
 class Measured:

@@ -55,6 +55,7 @@ from fieldkit.sim.simulator import (
     Simulation,
     StartPose,
     log_line,
+    run_ticks,
     start_grid,
     tuned_collector,
 )
@@ -590,14 +591,7 @@ class DistributedSimulation:
         after_step: Callable[[], None] | None = None,
     ) -> None:
         """Run the configured number of simulated seconds, as `Simulation.run`."""
-        total = round(self.config.seconds / TICK_S)
-        with tuned_collector():
-            while self.tick < total:
-                self.step()
-                if after_step is not None:
-                    after_step()
-                if progress is not None:
-                    progress(self.tick, total)
+        run_ticks(self, round(self.config.seconds / TICK_S), progress, after_step)
 
     def summary(self) -> dict[str, object]:
         """The run's figures, as `Simulation.summary` gives them for the same run."""

@@ -115,6 +115,32 @@ def tuned_collector() -> Iterator[None]:
         gc.unfreeze()
 
 
+class Steppable(Protocol):
+    """A swarm that steps tick by tick: `Simulation`, or one split across workers."""
+
+    tick: int
+
+    def step(self) -> None:
+        """One tick of every robot."""
+
+
+def run_ticks(
+    sim: Steppable,
+    total: int,
+    progress: Callable[[int, int], None] | None = None,
+    after_step: Callable[[], None] | None = None,
+) -> None:
+    """Step `sim` until its tick reaches `total`, with the tuned collector; `after_step()`
+    and `progress(ticks_done, total)` after every tick."""
+    with tuned_collector():
+        while sim.tick < total:
+            sim.step()
+            if after_step is not None:
+                after_step()
+            if progress is not None:
+                progress(sim.tick, total)
+
+
 @dataclass(frozen=True)
 class StartPose:
     """Where one robot starts a run and whether it is under way: a run that begins from a
@@ -746,14 +772,7 @@ class Simulation:
     ) -> None:
         """Run the configured number of simulated seconds; `after_step()` (a recorder) and
         `progress(ticks_done, ticks_total)` are called after every tick."""
-        total = round(self.config.seconds / TICK_S)
-        with tuned_collector():
-            while self.tick < total:
-                self.step()
-                if after_step is not None:
-                    after_step()
-                if progress is not None:
-                    progress(self.tick, total)
+        run_ticks(self, round(self.config.seconds / TICK_S), progress, after_step)
 
     def kill(self, rid: int) -> SimRobot:
         """Take robot `rid` out of the swarm between two ticks, as a hardware loss or a flat
@@ -869,4 +888,6 @@ __all__ = [
     "log_line",
     "start_grid",
     "tuned_collector",
+    "run_ticks",
+    "Steppable",
 ]
