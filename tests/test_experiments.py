@@ -193,6 +193,17 @@ def test_the_real_coverage_settles_on_the_centroids() -> None:
     assert start > 10.0  # on the takeoff grid, far from the centroids
 
 
+def test_coverage_at_ninety_percent_loss_holds_its_cells() -> None:
+    # At 90 % loss a neighbour unheard for 5 s leaves the neighbour table; robots that
+    # dropped it from their cell stepped metres away and back (this seed: 3.4 m after 60 s,
+    # 2.07 m at the end). coverage.bzz keeps the last place heard for 10 s.
+    plan = ex.make_plan("coverage", robots=[6], drops=[0.9], runs=1, seed=3)
+    (result,) = ex.run_plan(plan)
+    assert result.figures["errors"] == []
+    late = [r["centroid_distance_max_m"] for r in result.rows if r["t_s"] >= 60.0]
+    assert late and max(late) < 1.0  # type: ignore[type-var]
+
+
 def test_the_ground_station_hands_hotspots_then_deploy_to_robot_1() -> None:
     spec = ex.make_plan("coverage", robots=[6], drops=[0.0], runs=1).specs()[0]
     codes = [(c.robot, c.code) for c in spec.commands()]
