@@ -44,12 +44,12 @@ from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import bvm
 from fieldkit.errors import FieldkitError
-from fieldkit.robot import bundle as wirebundle
 from fieldkit.robot import geo
 from fieldkit.robot.rc import RcCommand
 from fieldkit.sim.radio import RadioModel, Reception
 from fieldkit.sim.simulator import (
     TICK_S,
+    BundleTally,
     SimConfig,
     SimRobot,
     Simulation,
@@ -379,7 +379,7 @@ class Timings:
         self.ticks = 0
 
 
-class DistributedSimulation:
+class DistributedSimulation(BundleTally):
     """A `Simulation`'s run (same log, errors, figures, summary) with the robots stepped by
     workers: `workers` local processes, or the workers of the Dask cluster at `scheduler`
     (`workers` parts on it, default one per cluster worker)."""
@@ -408,10 +408,7 @@ class DistributedSimulation:
         self.tick = 0
         self.log: list[str] = []
         self.errors: list[dict[str, object]] = []
-        self.max_bundle = 0
-        self.total_bundle = 0
-        self.air_bytes = 0
-        self.bundles = 0
+        BundleTally.__init__(self)
         self.timings = Timings()
         self._commands: dict[int, list[RcCommand]] = {}
         for c in config.commands:
@@ -572,12 +569,7 @@ class DistributedSimulation:
             if not broadcast:
                 continue
             data, messages, counter = sends[rid]
-            size = wirebundle.block_size(messages)
-            if size > self.max_bundle:
-                self.max_bundle = size
-            self.total_bundle += size
-            self.bundles += 1
-            self.air_bytes += len(data)
+            self.tally(data, messages)
             radio.broadcast(t, rid, data, note=(rid, messages, counter))
             if extra is not None:
                 for relay in extra[2]:

@@ -316,7 +316,27 @@ class SimRobot:
         return self.runtime.error is not None and not self.runtime.running
 
 
-class Simulation:
+class BundleTally:
+    """The bundles a swarm sent: the largest and total Buzz content (ROSBuzz's 190-byte
+    quantity), the bytes on the air (trailers included) and how many."""
+
+    def __init__(self) -> None:
+        self.max_bundle = 0
+        self.total_bundle = 0
+        self.air_bytes = 0
+        self.bundles = 0
+
+    def tally(self, data: bytes, messages: tuple[bytes, ...]) -> None:
+        """Count one bundle: its bytes on the air and the messages it holds."""
+        size = wirebundle.block_size(messages)
+        if size > self.max_bundle:
+            self.max_bundle = size
+        self.total_bundle += size
+        self.bundles += 1
+        self.air_bytes += len(data)
+
+
+class Simulation(BundleTally):
     """A seeded, tick-driven swarm simulation of one script on N robots."""
 
     def __init__(self, config: SimConfig, *, on_log: Callable[[str], None] | None = None) -> None:
@@ -341,10 +361,7 @@ class Simulation:
         # Script errors as they happened: robot, simulated time, the error.
         self.errors: list[dict[str, object]] = []
         self._failed: set[int] = set()  # robots whose error is in `errors`
-        self.max_bundle = 0
-        self.total_bundle = 0
-        self.air_bytes = 0  # bundles' bytes on the air, trailers included
-        self.bundles = 0
+        BundleTally.__init__(self)
         self._commands: dict[int, list[RcCommand]] = {}
         for c in config.commands:
             self._commands.setdefault(round(c.t / TICK_S), []).append(c)
@@ -721,12 +738,7 @@ class Simulation:
         return {r.id: c for r, c in zip(owners, columns, strict=True)}
 
     def _send(self, robot: SimRobot, data: bytes, messages: tuple[bytes, ...]) -> None:
-        size = wirebundle.block_size(messages)
-        if size > self.max_bundle:
-            self.max_bundle = size
-        self.total_bundle += size
-        self.bundles += 1
-        self.air_bytes += len(data)
+        self.tally(data, messages)
         # The real bytes travel (and are counted); the note of what they hold spares the
         # receivers parsing them again.
         security = robot.runtime.security
@@ -889,5 +901,6 @@ __all__ = [
     "start_grid",
     "tuned_collector",
     "run_ticks",
+    "BundleTally",
     "Steppable",
 ]
