@@ -75,21 +75,20 @@ SPACING_M = 3.0
 CROWD = 64
 
 
+def in_range(robots: int, range_m: float, spacing_m: float) -> float:
+    """About how many others each robot of a start grid of pitch `spacing_m` has in radio
+    range: what the ticks of a large swarm cost grows with (receptions, neighbour tables)."""
+    return min(robots - 1.0, math.pi * range_m**2 / spacing_m**2)
+
+
 def default_spacing(robots: int, range_m: float) -> float:
     """The start grid's pitch `sim run` uses unless told: SPACING_M (3 m), or, if more than
     CROWD robots would then be in range of one another, the pitch at which each has about
     CROWD in range (a thousand robots all in range of each other cost a million receptions,
     a million neighbour entries and as many swarm lists every tick: a run crawls)."""
-    in_range = math.pi * range_m**2 / SPACING_M**2  # robots within range on an endless grid
-    if robots - 1 <= CROWD or in_range <= CROWD or not math.isfinite(range_m):
+    if in_range(robots, range_m, SPACING_M) <= CROWD or not math.isfinite(range_m):
         return SPACING_M
     return round(range_m * math.sqrt(math.pi / CROWD), 1)
-
-
-def in_range(robots: int, range_m: float, spacing_m: float) -> float:
-    """About how many others each robot of a start grid of pitch `spacing_m` has in radio
-    range: what the ticks of a large swarm cost grows with (receptions, neighbour tables)."""
-    return min(robots - 1.0, math.pi * range_m**2 / spacing_m**2)
 
 
 def log_line(t: float, robot: int, text: str) -> str:
