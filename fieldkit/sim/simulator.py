@@ -334,6 +334,15 @@ class BundleTally:
         self.bundles += 1
         self.air_bytes += len(data)
 
+    def bundle_figures(self) -> dict[str, object]:
+        """`max_bundle_bytes`, `mean_bundle_bytes`, `mean_bundle_air_bytes` of summary.json."""
+        n = self.bundles
+        return {
+            "max_bundle_bytes": self.max_bundle,
+            "mean_bundle_bytes": round(self.total_bundle / n, 3) if n else 0,
+            "mean_bundle_air_bytes": round(self.air_bytes / n, 3) if n else 0,
+        }
+
 
 class Simulation(BundleTally):
     """A seeded, tick-driven swarm simulation of one script on N robots."""
@@ -809,13 +818,7 @@ class Simulation(BundleTally):
                 "drop": self.config.drop,
                 "seed": self.config.seed,
                 "seconds_simulated": round(self.tick * TICK_S, 6),
-                "max_bundle_bytes": self.max_bundle,
-                "mean_bundle_bytes": round(self.total_bundle / self.bundles, 3)
-                if self.bundles
-                else 0,
-                "mean_bundle_air_bytes": round(self.air_bytes / self.bundles, 3)
-                if self.bundles
-                else 0,
+                **self.bundle_figures(),
                 "final_states": {str(r.id): r.state for r in self.robots.values()},
                 # Every script error, in time order; those not recovered left their robot in
                 # its failsafe, listed in `in_failsafe`.
