@@ -34,6 +34,9 @@ function shl(a, b) { return a << b }
 function shr(a, b) { return a >> b }
 function tadd(t) { return t.a + t.b }
 function tsub(t) { return t.a - t.b }
+function tmul(t) { return t.a * t.b }
+function tlt(t) { return (t.a < t.b) }
+function tle(t) { return (t.a <= t.b) }
 """
 
 
@@ -134,6 +137,25 @@ def test_untyped_float_sums_round_their_operands_first(translate: bool, a: float
         a32, b32 = float(np.float32(a)), float(np.float32(b))
     assert same_float(vm.call("tadd", t), np32("add", a32, b32)), (a, b)
     assert same_float(vm.call("tsub", t), np32("sub", a32, b32)), (a, b)
+    assert same_float(vm.call("tmul", t), np32("mul", a32, b32)), (a, b)
+
+
+@PATHS
+@settings(max_examples=300, deadline=None)
+@given(
+    a=st.one_of(INT32, FLOAT32, st.floats()),
+    b=st.one_of(INT32, FLOAT32, st.floats(), st.just(math.nan)),
+)
+def test_untyped_comparisons_order_floats_as_ieee(translate: bool, a: float, b: float) -> None:
+    """Two floats read from a table (no known type) order as IEEE does, NaN unordered;
+    an int with a float is converted to binary32 first; the translated fast path for two
+    floats must agree with the full rule."""
+    vm = VMS[translate]
+    t = bvm.Table(a=a, b=b)
+    fa = float(np.float32(a)) if isinstance(a, int) and isinstance(b, float) else a
+    fb = float(np.float32(b)) if isinstance(b, int) and isinstance(a, float) else b
+    assert vm.call("tlt", t) == int(fa < fb), (a, b)
+    assert vm.call("tle", t) == int(fa <= fb), (a, b)
 
 
 @PATHS

@@ -651,6 +651,12 @@ class Codegen:
             self.emit(f"if {self.int_test(a, b)}:", at)
             self.emit(f"    {t} = {av} {sym} {bv}", at)
             self.emit(f"    {self.wrap_check(t, ins.op, b)}", at)
+            if ta == ANY and tb == ANY:
+                # Two floats (vector maths on table fields): Python's product, rounded once
+                # by `_redo` when both are binary32 (exact: 53 >= 2 * 24 + 2 bits); the
+                # full rule's type tests and three roundings cost three times more.
+                self.emit(f"elif {av}.__class__ is _float and {bv}.__class__ is _float:", at)
+                self.emit(f"    {t} = _redo({slow}, {av}, {bv}, {av} {sym} {bv})", at)
             self.emit(f"else: {t} = {slow}({av}, {bv})", at)
             self.push(t, ANY)
         elif {ta, tb} == {FLOAT, ANY}:
@@ -793,10 +799,12 @@ class Codegen:
                 ins.addr,
             )
         elif ta in (INT, ANY) and tb in (INT, ANY) and not equality:
-            self.emit(
-                f"{t} = ({av} {sym} {bv}) if {self.int_test(a, b)} else {slow}({av}, {bv})",
-                ins.addr,
-            )
+            test = self.int_test(a, b)
+            if ta == ANY and tb == ANY:
+                # Two floats order as Python orders them (IEEE, NaN unordered), as the full
+                # rule does without converting either.
+                test = f"{test} or ({av}.__class__ is _float and {bv}.__class__ is _float)"
+            self.emit(f"{t} = ({av} {sym} {bv}) if {test} else {slow}({av}, {bv})", ins.addr)
         else:
             self.emit(f"{t} = {slow}({av}, {bv})", ins.addr)
         self.push(t, BOOL)

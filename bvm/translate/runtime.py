@@ -16,13 +16,15 @@ from bvm.values import F32_CELL, Closure, Table, i32, type_name
 
 
 def redo(rule: Callable[[Any, Any], Any], a: Any, b: Any, result: Any) -> Any:
-    """Python's `a + b` (or `-`) was not a small int: wrap an int, else apply the full rule."""
+    """Python's `a + b` (or `-`, or `*` of two floats) was not a small int: wrap an int,
+    else apply the full rule."""
     if result.__class__ is int:
         return i32(result)
     if a.__class__ is float and b.__class__ is float:
-        # Two binary32 values: their binary64 sum or difference rounded once to binary32
-        # is the correctly rounded binary32 result (53 >= 2 * 24 + 2 bits), which the full
-        # rule computes more slowly. NaNs and unrounded host floats take the full rule.
+        # Two binary32 values: their binary64 sum, difference or product rounded once to
+        # binary32 is the correctly rounded binary32 result (53 >= 2 * 24 + 2 bits), which
+        # the full rule computes more slowly. NaNs and unrounded host floats take the full
+        # rule.
         cell = F32_CELL
         cell[0] = a
         if cell[0] == a:
