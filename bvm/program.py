@@ -74,6 +74,10 @@ class Program:
     locations: dict[int, tuple[str, int, int]] = field(init=False)
     _ids: list[str] = field(init=False, repr=False)
     _names: dict[int, str] | None = field(default=None, init=False, repr=False)
+    # pc -> its decoding: the bytecode never changes, and every robot of a swarm runs it.
+    _decoded: dict[int, Instruction | None] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
 
     def __post_init__(self) -> None:
         if len(self.bytecode) > MAX_FILE_BYTES or len(self.debug) > MAX_FILE_BYTES:
@@ -170,6 +174,14 @@ class Program:
         As in the reference, an instruction must be followed by at least one more byte
         (its pc increment must stay inside the file), except `done`, `ret0` and `ret1`.
         """
+        try:
+            return self._decoded[pc]
+        except KeyError:
+            ins = self._decoded[pc] = self._decode(pc)
+            return ins
+
+    def _decode(self, pc: int) -> Instruction | None:
+        """`decode` without the memory."""
         bc = self.bytecode
         size = len(bc)
         if pc < self.code_start or pc >= size:

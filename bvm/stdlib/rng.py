@@ -38,17 +38,30 @@ class MersenneTwister:
 
     The generation runs in CPython's `random.Random`, which is standard MT19937 (genrand
     with tempering; `getrandbits(32)` is one raw output): it is loaded with the quirky
-    initial state, so only the seeding is done here.
+    initial state, so only the seeding is done here. The state is made on the first draw:
+    every robot of a simulated swarm has a generator, and most scripts never draw.
     """
 
-    __slots__ = ("_gen", "next_u32")
+    __slots__ = ("_gen", "_seed", "next_u32")
 
     def __init__(self, seed: int = 5489) -> None:
-        self._gen = random.Random(0)  # state replaced by seed()
+        self._gen: random.Random | None = None
+        self._seed = seed
         # The next tempered 32-bit output, as an unsigned int in [0, 2**32).
-        self.next_u32: Callable[[], int] = partial(self._gen.getrandbits, 32)
+        self.next_u32: Callable[[], int] = self._first
         self.seed(seed)
 
     def seed(self, seed: int) -> None:
         """Re-seed (only the low 32 bits of `seed` matter, as for the reference's int32)."""
-        self._gen.setstate((3, (*quirky_init(seed), _N), None))
+        self._gen = None
+        self._seed = seed
+        self.next_u32 = self._first
+
+    def _first(self) -> int:
+        """The first draw since seeding: make the state, then draw straight from it."""
+        gen = self._gen
+        if gen is None:  # a caller may hold this method across draws: seed only once
+            gen = self._gen = random.Random(0)
+            gen.setstate((3, (*quirky_init(self._seed), _N), None))
+            self.next_u32 = partial(gen.getrandbits, 32)
+        return gen.getrandbits(32)
