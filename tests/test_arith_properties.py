@@ -37,6 +37,9 @@ function tsub(t) { return t.a - t.b }
 function tmul(t) { return t.a * t.b }
 function tlt(t) { return (t.a < t.b) }
 function tle(t) { return (t.a <= t.b) }
+function tlt0(t) { return (t.a < 0) }
+function tgtbig(t) { return (t.a > 16777217) }
+function tltf(t) { return (t.a < 0.5) }
 """
 
 
@@ -156,6 +159,12 @@ def test_untyped_comparisons_order_floats_as_ieee(translate: bool, a: float, b: 
     fb = float(np.float32(b)) if isinstance(b, int) and isinstance(a, float) else b
     assert vm.call("tlt", t) == int(fa < fb), (a, b)
     assert vm.call("tle", t) == int(fa <= fb), (a, b)
+    # Against literals: 0 converts exactly; 16777217 does not (binary32 makes it 2**24);
+    # a float literal meets a float or an int converted to binary32.
+    a32 = float(np.float32(a)) if isinstance(a, int) else a
+    assert vm.call("tlt0", t) == int(a < 0), a
+    assert vm.call("tgtbig", t) == int(a > (16777217 if isinstance(a, int) else 2.0**24)), a
+    assert vm.call("tltf", t) == int(a32 < 0.5), a
 
 
 @PATHS

@@ -804,7 +804,20 @@ class Codegen:
                 # Two floats order as Python orders them (IEEE, NaN unordered), as the full
                 # rule does without converting either.
                 test = f"{test} or ({av}.__class__ is _float and {bv}.__class__ is _float)"
+            elif _exact_in_binary32(a) or _exact_in_binary32(b):
+                # A float against an int literal that binary32 holds exactly (`x < 0`): the
+                # rule converts the int first, which changes nothing, so Python's mixed
+                # comparison is the rule's.
+                unknown = av if ta == ANY else bv
+                test = f"{test} or {unknown}.__class__ is _float"
             self.emit(f"{t} = ({av} {sym} {bv}) if {test} else {slow}({av}, {bv})", ins.addr)
+        elif not equality and {ta, tb} == {FLOAT, ANY}:
+            # `turn < 0.0`: a float against a float is Python's comparison (as above).
+            unknown = av if ta == ANY else bv
+            self.emit(
+                f"{t} = ({av} {sym} {bv}) if {unknown}.__class__ is _float else {slow}({av}, {bv})",
+                ins.addr,
+            )
         else:
             self.emit(f"{t} = {slow}({av}, {bv})", ins.addr)
         self.push(t, BOOL)
@@ -1034,3 +1047,8 @@ def generate(
     gen = Codegen(vm, instrs, slot_types, toplevel, selfcall, key, chunked_loops)
     gen.region(0, len(instrs), None)
     return gen
+
+
+def _exact_in_binary32(e: Expr) -> bool:
+    """Whether `e` is an int literal that converts to binary32 exactly (|n| <= 2**24)."""
+    return e.ty == INT and e.const is not None and -(2**24) <= e.const <= 2**24
