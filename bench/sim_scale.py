@@ -52,6 +52,7 @@ largest size measured unless `--at M` names another measured size.
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import statistics
 import time
@@ -168,24 +169,33 @@ def mission_rate(mission: str, robots: int) -> tuple[float, dict[str, float], fl
     tasks = min(robots, TA_TASKS)  # a smaller swarm never forms it: "not done"
     end: int | None = None
     outcome = "not done"
-    while sim.tick < cap:
-        phase = _phase(sim)
-        t1 = time.process_time()
-        sim.step()
-        cpu[phase] += time.process_time() - t1
-        if end is None and phase == "behaviour":
-            if mission == "coverage":
-                if all(r.state == "DEPLOY" for r in sim.robots.values()):
-                    end = sim.tick + round(COVER_S / TICK_S)
-            elif _labels_held(sim) >= tasks:
-                end = sim.tick
-                outcome = f"{TA_SHAPE} formed"
-        if end is not None and sim.tick >= end:
-            if mission == "coverage":
-                outcome = "covered"
-            break
+    with tuned_collector():  # as `Simulation.run` steps a swarm it has built
+        while sim.tick < cap:
+            phase = _phase(sim)
+            t1 = time.process_time()
+            sim.step()
+            cpu[phase] += time.process_time() - t1
+            end, outcome = _mission_end(mission, sim, phase, tasks, end, outcome)
+            if end is not None and sim.tick >= end:
+                if mission == "coverage":
+                    outcome = "covered"
+                break
     total = time.process_time() - t0
     return sim.tick / total, cpu, sim.tick * TICK_S, outcome
+
+
+def _mission_end(
+    mission: str, sim: Simulation, phase: str, tasks: int, end: int | None, outcome: str
+) -> tuple[int | None, str]:
+    """The tick the mission ends at (None: not known yet) and its outcome so far."""
+    if end is None and phase == "behaviour":
+        if mission == "coverage":
+            if all(r.state == "DEPLOY" for r in sim.robots.values()):
+                end = sim.tick + round(COVER_S / TICK_S)
+        elif _labels_held(sim) >= tasks:
+            end = sim.tick
+            outcome = f"{TA_SHAPE} formed"
+    return end, outcome
 
 
 def ticks_per_second(robots: int, measure_s: float) -> tuple[float, float, float, dict[str, int]]:
@@ -253,8 +263,8 @@ def main_mission(mission: str, sizes: list[int], at: int | None) -> None:
         + f" {'sim s':>6s}  outcome"
     )
     for n in sizes:
-        with tuned_collector():  # as `Simulation.run` steps
-            tps, cpu, simulated, outcome = mission_rate(mission, n)
+        gc.collect()  # the previous size's swarm is gone before this one is timed
+        tps, cpu, simulated, outcome = mission_rate(mission, n)
         results.append((n, tps))
         print(
             f"{n:7d} {tps:8.2f} {tps * TICK_S:12.2f} "

@@ -74,9 +74,8 @@ class Program:
     locations: dict[int, tuple[str, int, int]] = field(init=False)
     _ids: list[str] = field(init=False, repr=False)
     _names: dict[int, str] | None = field(default=None, init=False, repr=False)
-    # pc -> its decoding: the bytecode never changes, and every robot of a swarm runs it.
-    _decoded: dict[int, Instruction | None] = field(
-        default_factory=dict, init=False, repr=False, compare=False
+    _plan: tuple[tuple[tuple[str, int], ...], int] | bool | None = field(
+        default=None, init=False, repr=False, compare=False
     )
 
     def __post_init__(self) -> None:
@@ -137,27 +136,48 @@ class Program:
         name = self._prologue_names().get(addr)
         return name if name is not None else f"<function at offset {addr}>"
 
+    def registrations(self) -> tuple[tuple[tuple[str, int], ...], int] | None:
+        """The prologue as data, when it is the compiler's: `pushs name; pushcn addr;
+        gstore` triples and a `nop`. The (name, address) pairs in order and the pc after
+        the `nop`; None for any other prologue (the interpreter runs it)."""
+        plan = self._plan
+        if plan is None:
+            triples, pc = self._prologue()
+            end = self.decode(pc)
+            plan = False
+            if end is not None and end.op is Op.NOP and all(n is not None for n, _ in triples):
+                plan = (tuple(triples), end.next)  # type: ignore[arg-type]  # names checked
+            self._plan = plan
+        return plan if isinstance(plan, tuple) else None
+
     def _prologue_names(self) -> dict[int, str]:
         """Named functions by address, from the prologue's `pushs name; pushcn addr;
         gstore` triples (in every .bo, with or without debug files)."""
         names = self._names
         if names is None:
             names = {}
-            pc = self.code_start
-            while True:
-                a = self.decode(pc)
-                b = self.decode(a.next) if a is not None else None
-                c = self.decode(b.next) if b is not None else None
-                if a is None or b is None or c is None:
-                    break
-                if a.op is not Op.PUSHS or b.op is not Op.PUSHCN or c.op is not Op.GSTORE:
-                    break
-                name = self.string(a.int_arg)
+            for name, addr in self._prologue()[0]:
                 if name is not None:
-                    names.setdefault(b.int_arg, name)
-                pc = c.next
+                    names.setdefault(addr, name)
             self._names = names
         return names
+
+    def _prologue(self) -> tuple[list[tuple[str | None, int]], int]:
+        """The leading `pushs name; pushcn addr; gstore` triples as (name, address), a
+        name None when its string id names none, and the pc where they end."""
+        triples: list[tuple[str | None, int]] = []
+        pc = self.code_start
+        while True:
+            a = self.decode(pc)
+            b = self.decode(a.next) if a is not None else None
+            c = self.decode(b.next) if b is not None else None
+            if a is None or b is None or c is None:
+                break
+            if a.op is not Op.PUSHS or b.op is not Op.PUSHCN or c.op is not Op.GSTORE:
+                break
+            triples.append((self.string(a.int_arg), b.int_arg))
+            pc = c.next
+        return triples, pc
 
     def string(self, sid: int) -> str | None:
         """The string a `pushs` id names, or None when no string has that id."""
@@ -174,14 +194,6 @@ class Program:
         As in the reference, an instruction must be followed by at least one more byte
         (its pc increment must stay inside the file), except `done`, `ret0` and `ret1`.
         """
-        try:
-            return self._decoded[pc]
-        except KeyError:
-            ins = self._decoded[pc] = self._decode(pc)
-            return ins
-
-    def _decode(self, pc: int) -> Instruction | None:
-        """`decode` without the memory."""
         bc = self.bytecode
         size = len(bc)
         if pc < self.code_start or pc >= size:

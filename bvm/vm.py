@@ -308,9 +308,17 @@ class VM:
         self._new_swarm_state()
         self.state = "ready"
         self.error = None
-        start = self._run(
-            lambda: interpret(self, program.code_start, None, toplevel=True, stop_at_nop=True)
-        )
+        plan = program.registrations()
+        if plan is not None:
+            # The compiler's prologue, done directly: what interpreting its instructions
+            # does, without decoding and dispatching ~190 of them per robot of a swarm.
+            pairs, start = plan
+            for name, addr in pairs:
+                self.gstore(name, self.make_closure(addr, (None,)))
+        else:
+            start = self._run(
+                lambda: interpret(self, program.code_start, None, toplevel=True, stop_at_nop=True)
+            )
         if start is None:  # `done` before the prologue's `nop` (the reference hangs here)
             raise self._fail(BuzzError("done in the function-registration prologue"))
         self._global_start = start

@@ -528,3 +528,37 @@ def test_peer_count_is_the_robots_heard_in_swarm_lists() -> None:
         vm.receive(sender, wire.encode(wire.SwarmList((1,))))
     vm.process_inbox()
     assert vm.peer_count == 2
+
+
+@pytest.mark.parametrize("script", ["task_allocation.bzz", "coverage.bzz"])
+def test_the_compiled_prologue_registers_what_interpreting_it_does(script: str) -> None:
+    """VM.load runs the compiler's prologue (`pushs; pushcn; gstore` triples, then `nop`)
+    as data instead of interpreting it: the same globals, in the same order, as the
+    interpreter gives a copy of the program whose prologue is not recognised."""
+    root = Path(__file__).resolve().parent.parent / "buzz_scripts"
+    program = bvm.compile_file(root / script, [str(root)])
+    plan = program.registrations()
+    assert plan is not None and len(plan[0]) > 10  # the fast path is taken
+    interpreted = bvm.compile_file(root / script, [str(root)])
+    interpreted._plan = False  # not recognised: the interpreter runs it
+    assert interpreted.registrations() is None
+
+    def registered(p: bvm.Program) -> list[tuple[str, object]]:
+        vm = bvm.VM()
+        vm.load(p)
+        return [
+            (k, (v.ref, v.native, v.actrec) if isinstance(v, bvm.Closure) else v)
+            for k, v in vm.globals.items()
+            if not k.startswith("_") and not isinstance(v, Table)  # not the translator's
+        ]
+
+    assert registered(program) == registered(interpreted)
+
+
+def test_a_prologue_the_compiler_did_not_write_is_interpreted() -> None:
+    # A `pushi` among the triples: not the compiler's pattern, so no plan.
+    program = bvm.assemble("!0\n\n\tpushi 1\n\tpop\n\tnop\n\tdone\n")
+    assert program.registrations() is None
+    vm = bvm.VM()
+    vm.load(program)
+    vm.execute()
