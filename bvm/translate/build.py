@@ -73,12 +73,19 @@ class Built:
         local: dict[str, Any] = {}
         exec(self.code, namespace, local)
         f: Callable[..., Any] = local[self.fname]
-        LINE_MAPS[f.__code__] = self.line_map
+        _map_lines(f.__code__, self.line_map)
         if self.sc_name is not None:
             body = local[self.bname] if self.bname is not None else f
-            LINE_MAPS[body.__code__] = self.line_map
+            _map_lines(body.__code__, self.line_map)
             namespace[self.sc_name] = body
         return f
+
+
+def _map_lines(code: CodeType, line_map: LineMap) -> None:
+    """Note `code`'s line map; the VMs sharing a translation share its code objects, and
+    a weak dictionary's store (a new weak reference) costs more than the lookup."""
+    if LINE_MAPS.get(code) is not line_map:
+        LINE_MAPS[code] = line_map
 
 
 def translate(
