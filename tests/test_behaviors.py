@@ -369,6 +369,110 @@ def test_buzz_region_is_the_inflated_hull_of_the_metric() -> None:
     assert all(min(math.dist(g, w) for w in want) < 1e-3 for g in got)
 
 
+# coverage.bzz's region as first written: every corner tested against every earlier one,
+# through the vec2 functions. The script now skips pairs that cannot be duplicates and
+# writes the arithmetic out; its regions must be the same, bit for bit.
+REGION_AS_FIRST_WRITTEN = """
+include "include/vec2.bzz"
+function is_new(pts, n, pt) {
+  var k = 0
+  var fresh = 1
+  while (k < n) {
+    if (vec_length(vec_sub(pts[k], pt)) < 0.001) {
+      fresh = 0
+    }
+    k = k + 1
+  }
+  return fresh
+}
+function hull(pts, n) {
+  var start = 0
+  var i = 1
+  while (i < n) {
+    if (pts[i].x < pts[start].x) {
+      start = i
+    } else {
+      if (pts[i].x == pts[start].x and pts[i].y < pts[start].y) {
+        start = i
+      }
+    }
+    i = i + 1
+  }
+  var out = {}
+  var h = 0
+  var p = start
+  var more = 1
+  while (more == 1) {
+    out[h] = pts[p]
+    h = h + 1
+    var q = (p + 1) % n
+    var r = 0
+    while (r < n) {
+      var turn = vec_cross3(pts[p], pts[q], pts[r])
+      if (turn < 0.0) {
+        q = r
+      } else {
+        if (turn == 0.0 and vec_length(vec_sub(pts[r], pts[p])) > vec_length(vec_sub(pts[q], pts[p]))) {
+          q = r
+        }
+      }
+      r = r + 1
+    }
+    p = q
+    if (p == start or h >= n) {
+      more = 0
+    }
+  }
+  return out
+}
+function region(centres, count, margin, sides) {
+  var pts = {}
+  var n = 0
+  var k = 0
+  while (k < count) {
+    var s = 0
+    while (s < sides) {
+      var corner = vec_add(centres[k], vec_polar(margin, 2.0 * math.pi * s / sides))
+      if (is_new(pts, n, corner) == 1) {
+        pts[n] = corner
+        n = n + 1
+      }
+      s = s + 1
+    }
+    k = k + 1
+  }
+  return hull(pts, n)
+}
+"""
+
+
+@pytest.mark.parametrize(
+    ("centres", "margin"),
+    [
+        ([(0.0, 0.0), (40.0, 10.0), (15.0, 60.0), (20.0, 20.0)], 20.0),  # near and far
+        ([(0.0, 0.0), (40.0, 0.0), (40.0, 40.0)], 20.0),  # corners that coincide
+        ([(5.0, 5.0), (5.0, 5.0), (90.0, -30.0)], 20.0),  # one hotspot twice
+        ([(0.0, 0.0), (30.0, 0.0), (0.0, 30.0)], 0.0),  # no margin: eight equal corners
+        ([(0.0, 0.0), (30.0, 0.0), (0.0, 30.0)], 0.004),  # corners 3 mm apart
+        ([(0.0, 0.0), (30.0, 0.0), (0.0, 30.0)], -20.0),  # a negative margin
+    ],
+)
+def test_region_is_the_one_first_written(centres: list[tuple[float, float]], margin: float) -> None:
+    reference = bvm.VM(robot_id=1)
+    reference.load(bvm.compile_source(REGION_AS_FIRST_WRITTEN, "ref.bzz", [str(SCRIPTS)]))
+    reference.execute()
+    table = {k: {"x": f32(x), "y": f32(y)} for k, (x, y) in enumerate(centres)}
+    want = reference.call("region", table, len(centres), f32(margin), 8)
+    vm = coverage_vm()
+    vm["MARGIN"] = f32(margin)
+    vm["HS_LOCAL"] = table
+    vm["HS_KEYS"] = list(range(len(centres)))
+    vm["HS_COUNT"] = len(centres)
+    vm.call("cov_build_region")
+    got = vm["REGION"]
+    assert [(p["x"], p["y"]) for p in got.values()] == [(p["x"], p["y"]) for p in want.values()]
+
+
 HOTSPOTS_EN = [(-10.0, -10.0), (30.0, -10.0), (30.0, 30.0), (-10.0, 30.0), (10.0, 45.0)]
 FAR_HOTSPOTS_EN = [(60.0, 10.0), (100.0, 10.0), (80.0, 50.0)]
 
