@@ -412,7 +412,8 @@ function hull(pts, n) {
       if (turn < 0.0) {
         q = r
       } else {
-        if (turn == 0.0 and vec_length(vec_sub(pts[r], pts[p])) > vec_length(vec_sub(pts[q], pts[p]))) {
+        var far = (vec_length(vec_sub(pts[r], pts[p])) > vec_length(vec_sub(pts[q], pts[p])))
+        if (turn == 0.0 and far) {
           q = r
         }
       }
