@@ -379,3 +379,20 @@ def test_exponential_arity_and_types() -> None:
         call(vm, "math.rng.exponential")
     with pytest.raises(BuzzError, match="expected float or integer, got table"):
         call(vm, "math.rng.exponential", Table())
+
+
+def test_a_draw_held_across_a_reseed_follows_the_new_seed() -> None:
+    """The state is made on the first draw; a re-seed after that reloads the same
+    generator, so a `next_u32` taken before the re-seed draws the new sequence."""
+    from bvm.stdlib.rng import MersenneTwister
+
+    lazy = MersenneTwister(7)
+    held_before_any_draw = lazy.next_u32
+    first = held_before_any_draw()
+    held = lazy.next_u32
+    lazy.seed(7)
+    assert held() == first
+    fresh = MersenneTwister(5)
+    lazy.seed(5)
+    assert [held() for _ in range(3)] == [fresh.next_u32() for _ in range(3)]
+    assert held_before_any_draw() == fresh.next_u32()

@@ -53,9 +53,9 @@ class MersenneTwister:
 
     def seed(self, seed: int) -> None:
         """Re-seed (only the low 32 bits of `seed` matter, as for the reference's int32)."""
-        self._gen = None
         self._seed = seed
-        self.next_u32 = self._first
+        if self._gen is not None:  # drawn from already: the same generator, a new state
+            self._gen.setstate((3, (*quirky_init(seed), _N), None))
 
     def _first(self) -> int:
         """The first draw since seeding: make the state, then draw straight from it."""
