@@ -49,19 +49,23 @@ class MersenneTwister:
         self._seed = seed
         # The next tempered 32-bit output, as an unsigned int in [0, 2**32).
         self.next_u32: Callable[[], int] = self._first
-        self.seed(seed)
 
     def seed(self, seed: int) -> None:
         """Re-seed (only the low 32 bits of `seed` matter, as for the reference's int32)."""
         self._seed = seed
         if self._gen is not None:  # drawn from already: the same generator, a new state
-            self._gen.setstate((3, (*quirky_init(seed), _N), None))
+            self._gen.setstate(_state(seed))
 
     def _first(self) -> int:
-        """The first draw since seeding: make the state, then draw straight from it."""
+        """The first draw: make the generator, then draw straight from it."""
         gen = self._gen
-        if gen is None:  # a caller may hold this method across draws: seed only once
+        if gen is None:  # a caller may hold this method across draws: make it only once
             gen = self._gen = random.Random(0)
-            gen.setstate((3, (*quirky_init(self._seed), _N), None))
+            gen.setstate(_state(self._seed))
             self.next_u32 = partial(gen.getrandbits, 32)
         return gen.getrandbits(32)
+
+
+def _state(seed: int) -> tuple[object, ...]:
+    """`random.Random.setstate`'s argument for the reference's state from `seed`."""
+    return (3, (*quirky_init(seed), _N), None)
