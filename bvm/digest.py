@@ -69,6 +69,7 @@ class _Walker:
 def state_digest(vm: Any) -> bytes:
     """The 32-byte SHA-256 digest of `vm`'s script globals (host functions left out)."""
     walker = _Walker()
+    vm.settle()  # what the host left to be made on first use is state too
     globals_ = vm.globals
     for name in sorted(globals_):
         v = globals_[name]

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from bvm import srcmap as _srcmap
 from bvm.errors import BuzzLoadError
-from bvm.opcodes import FIRST_ARG_OPCODE, NUM_OPCODES, Op
+from bvm.opcodes import ADDRESS_OPS, FIRST_ARG_OPCODE, NUM_OPCODES, Op
 from bvm.srcmap import Position, SourceMap
 
 _log = logging.getLogger("bvm")
@@ -76,6 +76,9 @@ class Program:
     _names: dict[int, str] | None = field(default=None, init=False, repr=False)
     _plan: tuple[tuple[tuple[str, int], ...], int] | bool | None = field(
         default=None, init=False, repr=False, compare=False
+    )
+    _member_reads: dict[str, frozenset[str] | None] = field(
+        default_factory=dict, init=False, repr=False, compare=False
     )
 
     def __post_init__(self) -> None:
@@ -178,6 +181,53 @@ class Program:
             triples.append((self.string(a.int_arg), b.int_arg))
             pc = c.next
         return triples, pc
+
+    def member_reads(self, name: str) -> frozenset[str] | None:
+        """The keys the code reads from global `name` as `name.k` or `name.k(...)`, if
+        that is all it does with it; None if the value may go anywhere else (stored,
+        passed, iterated, written to, or any global read by a computed name).
+
+        A linear sweep of the code, exact for what a compiler emits: every jump and
+        closure must land on an instruction of the sweep and outside the patterns, so no
+        other path reaches them. A method call's `dup` leaves the table in the self slot
+        that `callc` pops unread (docs/bytecode.md#calls)."""
+        found = self._member_reads.get(name, False)
+        if found is False:
+            found = self._member_reads[name] = self._scan_member_reads(name)
+        return found  # type: ignore[return-value]  # False was replaced
+
+    def _scan_member_reads(self, name: str) -> frozenset[str] | None:
+        code: list[Instruction] = []
+        pc = self.code_start
+        while (ins := self.decode(pc)) is not None:
+            code.append(ins)
+            pc = ins.next if ins.op is not Op.DONE else pc + 1
+        starts = {ins.addr for ins in code}
+        targets = {ins.int_arg for ins in code if ins.op in ADDRESS_OPS}
+        if not targets <= starts:
+            return None
+        keys: set[str] = set()
+        inside: set[int] = set()  # instructions after the first of each pattern
+        for i, ins in enumerate(code):
+            if ins.op is not Op.GLOAD:
+                continue
+            if i == 0 or code[i - 1].op is not Op.PUSHS or ins.addr in targets:
+                return None  # a global read by a computed name
+            if self.string(code[i - 1].int_arg) != name:
+                continue
+            j = i + 1 + (i + 1 < len(code) and code[i + 1].op is Op.DUP)
+            key = code[j] if j < len(code) else None
+            get = code[j + 1] if j + 1 < len(code) else None
+            if key is None or get is None or key.op is not Op.PUSHS or get.op is not Op.TGET:
+                return None
+            k = self.string(key.int_arg)
+            if k is None:
+                return None
+            keys.add(k)
+            inside.update(c.addr for c in code[i : j + 2])
+        if targets & inside:
+            return None
+        return frozenset(keys)
 
     def string(self, sid: int) -> str | None:
         """The string a `pushs` id names, or None when no string has that id."""

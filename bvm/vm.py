@@ -294,6 +294,7 @@ class VM:
     def load(self, program: Program) -> None:
         """Load bytecode: run its function-registration prologue, then install the library."""
         from bvm import stdlib
+        from bvm.stdlib.neighbors import methods_only
 
         self.program = program
         self.globals.clear()
@@ -325,6 +326,7 @@ class VM:
         # Built-ins are stored after the prologue, so they replace same-named user
         # functions (reference behavior); later top-level assignments win again.
         stdlib.install(self)
+        self.neighbors.lazy = methods_only(program)
 
     def execute(self) -> None:
         """Run the global code (up to `done`)."""
@@ -565,6 +567,11 @@ class VM:
     def peer_count(self) -> int:
         """How many other robots this VM holds swarm memberships of (from their lists)."""
         return len(self.swarms.peers)
+
+    def settle(self) -> None:
+        """Make now what the VM keeps to be made on first use (this step's neighbour
+        `poses`), so that the globals hold every value the script could read."""
+        self.neighbors.poses()
 
     def set_neighbors(self, entries: Iterable[tuple[int, float, float, float]]) -> None:
         """Replace this step's neighbors: (robot id, distance, azimuth, elevation) each,

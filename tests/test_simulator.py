@@ -155,7 +155,7 @@ def test_a_robot_not_heard_for_the_timeout_leaves_its_neighbours(tmp_path: Path)
         sim.step()
 
     def poses(rid: int) -> dict:
-        return dict(sim.robots[rid].vm.neighbors.table["poses"])
+        return dict(sim.robots[rid].vm.neighbors.poses() or {})
 
     assert sorted(poses(1)) == [2, 3, 4]
     where = poses(1)[4]["distance"]

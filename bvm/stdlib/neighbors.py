@@ -24,8 +24,23 @@ from bvm.values import Closure, Table
 
 if TYPE_CHECKING:
     from bvm.host import LibraryHost
+    from bvm.program import Program
 
 POSES = "poses"
+
+#: The global table's methods: a program that reads `neighbors` only through these never
+#: sees its `poses` but through them.
+NEIGHBOR_METHODS = frozenset(
+    ("get", "filter", "kin", "nonkin", "foreach", "map", "reduce", "count")
+    + ("broadcast", "listen", "ignore")
+)
+
+
+def methods_only(program: Program) -> bool:
+    """Whether `program` reads the global `neighbors` only through its methods, so that
+    its `poses` may be filled when a method first needs them."""
+    reads = program.member_reads("neighbors")
+    return reads is not None and reads <= NEIGHBOR_METHODS
 
 
 class Neighbors:
@@ -36,11 +51,17 @@ class Neighbors:
         self.listeners: dict[str, Closure] = {}
         self.table = Table()  # the global `neighbors`
         self._derived_methods: list[tuple[str, Closure]] | None = None
+        #: Whether `poses` may be filled on first use: set at load when the program
+        #: reads the global `neighbors` only through its methods (Program.member_reads).
+        self.lazy = False
+        self._pending: tuple[list[int], list[float], list[float]] | None = None
+        self._entries: dict[int, Table] = {}  # of the pending columns, made by `get`
 
     # ------------------------------------------------------------ host side
 
     def set(self, entries: list[tuple[int, float, float, float]]) -> None:
         """Replace this step's neighbors: (robot id, distance, azimuth, elevation) each."""
+        self._pending = None
         poses = Table()
         # One C-level conversion rounds every number to binary32 (Buzz floats).
         values = array("f", [v for e in entries for v in e[1:4]])
@@ -58,16 +79,64 @@ class Neighbors:
 
     def set_columns(self, ids: list[int], distances: list[float], azimuths: list[float]) -> None:
         """`set` for values already rounded to binary32 and valid ids, elevations 0: what a
-        simulator computes for a whole swarm at once."""
+        simulator computes for a whole swarm at once. With `lazy`, the tables are made
+        when a method first needs them: most steps of most robots need none or few."""
+        if self.lazy:
+            if len(ids) != len(distances) or len(ids) != len(azimuths):
+                raise ValueError("neighbour columns of different lengths")
+            self._pending = (ids, distances, azimuths)
+            if self._entries:
+                self._entries = {}
+            self.table.pop(POSES, None)
+            return
+        self.table[POSES] = self._poses(ids, distances, azimuths)
+
+    def _poses(self, ids: list[int], distances: list[float], azimuths: list[float]) -> Table:
+        """The `poses` table of these columns (with the entries `get` made already)."""
+        made = self._entries
         poses = Table()
         for rid, distance, azimuth in zip(ids, distances, azimuths, strict=True):
-            # Item stores: a third faster than keyword arguments, and this runs for every
-            # neighbour of every robot of a simulated swarm, every tick.
-            poses[rid] = entry = Table()
-            entry["distance"] = distance
-            entry["azimuth"] = azimuth
+            entry = made.get(rid) if made else None
+            if entry is None:
+                # Item stores: a third faster than keyword arguments, and this runs for
+                # every neighbour of every robot of a simulated swarm, every tick.
+                entry = Table()
+                entry["distance"] = distance
+                entry["azimuth"] = azimuth
+                entry["elevation"] = 0.0
+            poses[rid] = entry
+        return poses
+
+    def _settle(self) -> None:
+        """Fill `poses` from the pending columns."""
+        pending = self._pending
+        if pending is not None:
+            self.table[POSES] = self._poses(*pending)
+            self._pending = None
+            self._entries = {}
+
+    def poses(self) -> Table | None:
+        """This step's `poses` table of the global `neighbors` (made now if pending)."""
+        self._settle()
+        return self.table.get(POSES)
+
+    def _pending_entry(self, rid: Any) -> Table | None:
+        """`get(rid)` on the global table while its columns are pending: the one entry,
+        the same table for every call this step and in `poses` if it is made later."""
+        assert self._pending is not None
+        ids, distances, azimuths = self._pending
+        made = self._entries
+        entry = made.get(rid)
+        if entry is None:
+            try:
+                i = ids.index(rid)  # == as the table's lookup compares (3.0 finds 3)
+            except ValueError:
+                return None
+            made[rid] = entry = Table()
+            entry["distance"] = distances[i]
+            entry["azimuth"] = azimuths[i]
             entry["elevation"] = 0.0
-        self.table[POSES] = poses
+        return entry
 
     # ------------------------------------------------------------ script side
 
@@ -88,17 +157,24 @@ class Neighbors:
         """(name, implementation, arity) of get filter kin nonkin foreach map reduce count."""
         vm = self.vm
         failed = vm.call_failed
+        table = self.table
 
         def poses_of(t: Any) -> Table:
+            if t is table and self._pending is not None:
+                self._settle()
             p = t[POSES] if t.__class__ is Table else None
             return p if p.__class__ is Table else Table()
 
         # Each runs a Buzz closure per neighbor: `f.fn(f, ...)` inline, one Python call per
         # entry, with wrong argument counts and non-closures left to `vm.call_failed`.
         def n_get(t: Any, rid: Any) -> Any:
+            if t is table and self._pending is not None:
+                return self._pending_entry(rid)
             return poses_of(t)[rid]
 
         def n_count(t: Any) -> int:
+            if t is table and self._pending is not None:
+                return len(self._pending[0])
             return len(poses_of(t))
 
         def n_foreach(t: Any, f: Any) -> None:
