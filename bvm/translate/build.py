@@ -27,7 +27,7 @@ class Built:
     """A compiled translation, ready to install in any VM of its program: the code, the
     names it defines, its line map and how to find each constant it binds."""
 
-    __slots__ = ("code", "fname", "bname", "sc_name", "line_map", "recipes")
+    __slots__ = ("code", "fname", "bname", "sc_name", "line_map", "recipes", "mapped")
 
     def __init__(
         self,
@@ -44,6 +44,9 @@ class Built:
         self.sc_name = sc_name  # the name direct self-calls call
         self.line_map = line_map
         self.recipes = recipes
+        # Whether LINE_MAPS has the functions' code: every install makes functions of the
+        # same code objects, which live as long as `code`, so once is enough.
+        self.mapped = False
 
     def constants(self, vm: TranslatorHost) -> dict[str, Any]:
         """The constants this translation binds, found in `vm`."""
@@ -73,19 +76,14 @@ class Built:
         local: dict[str, Any] = {}
         exec(self.code, namespace, local)
         f: Callable[..., Any] = local[self.fname]
-        _map_lines(f.__code__, self.line_map)
+        body = f
         if self.sc_name is not None:
             body = local[self.bname] if self.bname is not None else f
-            _map_lines(body.__code__, self.line_map)
             namespace[self.sc_name] = body
+        if not self.mapped:
+            LINE_MAPS[f.__code__] = LINE_MAPS[body.__code__] = self.line_map
+            self.mapped = True
         return f
-
-
-def _map_lines(code: CodeType, line_map: LineMap) -> None:
-    """Note `code`'s line map; the VMs sharing a translation share its code objects, and
-    a weak dictionary's store (a new weak reference) costs more than the lookup."""
-    if LINE_MAPS.get(code) is not line_map:
-        LINE_MAPS[code] = line_map
 
 
 def translate(
