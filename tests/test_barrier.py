@@ -4,13 +4,17 @@ ROSBuzz's own barrier, which must still run unmodified on fieldkit's stigmergy."
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import pytest
 from harness import Harness
+from hypothesis import given
+from hypothesis import strategies as st
 from test_behaviors import BARRIER_PROBE, INCLUDE, SCRIPTS, StandIn
 
 import bvm
+from fieldkit.robot.script_api import ScriptAPI
 from fieldkit.sim.radio import LinkModel
 
 ROSBUZZ = Path(__file__).resolve().parent / "data" / "rosbuzz"
@@ -278,3 +282,49 @@ def test_rosbuzz_barrier_still_times_out_unmodified() -> None:
     h.run(40)
     assert h.errors == {}
     assert {vm["BVMSTATE"] for vm in h.vms.values()} == {"BACK"}
+
+
+SEEN_PROBE = """
+include "include/states.bzz"
+function init() { flow_init() }
+function step() {}
+function size_now() { return flow_swarm_size() }
+"""
+
+
+@functools.cache
+def _seen_probe() -> bvm.Program:
+    return bvm.compile_source(SEEN_PROBE, "seen.bzz", [str(SCRIPTS)])
+
+
+@given(
+    events=st.lists(
+        st.tuples(st.integers(1, 400), st.lists(st.integers(0, 30), max_size=6), st.integers(1, 9)),
+        min_size=1,
+        max_size=12,
+    )
+)
+def test_the_kept_swarm_size_is_the_count_of_robots_heard_lately(
+    events: list[tuple[int, list[int], int]],
+) -> None:
+    # flow_swarm_size keeps its count until SEEN changes or an entry ages out: at every
+    # tick it must equal the count made afresh.
+    program = _seen_probe()
+    vm = bvm.VM(robot_id=1)
+    vm.load(program)
+    ScriptAPI(vm).install()
+    vm.execute()
+    vm.call("init")
+    seen: dict[int, int] = {}
+    tick = 0
+    for gap, ids, robots in events:
+        for _ in range(gap):
+            tick += 1
+            vm["TICK"] = tick
+            vm["ROBOTS"] = robots
+            heard = 1 + sum(1 for last in seen.values() if tick - last <= 300)
+            assert vm.call("size_now") == max(robots, heard)
+        vm.set_neighbors([(rid, 1.0, 0.0, 0.0) for rid in ids])
+        vm.call("flow_update_seen")  # what every SEEN_PERIOD-th step does
+        for rid in ids:
+            seen[rid] = tick
