@@ -187,10 +187,11 @@ class Program:
         that is all it does with it; None if the value may go anywhere else (stored,
         passed, iterated, written to, or any global read by a computed name).
 
-        A linear sweep of the code, exact for what a compiler emits: every jump and
-        closure must land on an instruction of the sweep and outside the patterns, so no
-        other path reaches them. A method call's `dup` leaves the table in the self slot
-        that `callc` pops unread (docs/bytecode.md#calls)."""
+        A linear sweep of the code, for any bytecode: every jump and closure must land on
+        an instruction of the sweep and outside the patterns, so no other path enters
+        them; a method call's `dup` copy must stay below the closure, with nothing
+        reading it, until the `callc` that pops it as its ignored self slot
+        (docs/bytecode.md#calls), its arguments neither jumping nor returning."""
         found = self._member_reads.get(name, False)
         if found is False:
             found = self._member_reads[name] = self._scan_member_reads(name)
@@ -223,8 +224,13 @@ class Program:
             k = self.string(key.int_arg)
             if k is None:
                 return None
+            end: int | None = j + 1
+            if j > i + 1:  # a method call: the copy must reach `callc` as its self, unread
+                end = _call_of(code, j + 2)
+            if end is None:
+                return None
             keys.add(k)
-            inside.update(c.addr for c in code[i : j + 2])
+            inside.update(c.addr for c in code[i : end + 1])
         if targets & inside:
             return None
         return frozenset(keys)
@@ -269,6 +275,51 @@ class Program:
                 word = word - 0x100000000 if word & 0x80000000 else word
             arg = word
         return Instruction(pc, op, arg, pc + 5)
+
+
+# (popped, pushed) of the opcodes a call's arguments may hold; `callc`/`calls` apart.
+_STACK_EFFECT: dict[Op, tuple[int, int]] = {
+    Op.NOP: (0, 0),
+    Op.PUSHNIL: (0, 1),
+    Op.DUP: (1, 2),
+    Op.POP: (1, 0),
+    **{op: (2, 1) for op in (Op.ADD, Op.SUB, Op.MUL, Op.DIV, Op.MOD, Op.POW, Op.LAND)},
+    **{op: (2, 1) for op in (Op.LOR, Op.BAND, Op.BOR, Op.LSHIFT, Op.RSHIFT, Op.EQ, Op.NEQ)},
+    **{op: (2, 1) for op in (Op.GT, Op.GTE, Op.LT, Op.LTE, Op.TGET)},
+    **{op: (1, 1) for op in (Op.UNM, Op.LNOT, Op.BNOT, Op.GLOAD)},
+    Op.GSTORE: (2, 0),
+    Op.PUSHT: (0, 1),
+    Op.TPUT: (3, 0),
+    **{op: (0, 1) for op in (Op.PUSHF, Op.PUSHI, Op.PUSHS, Op.PUSHCN, Op.PUSHCC, Op.PUSHL)},
+    Op.LLOAD: (0, 1),
+    Op.LSTORE: (1, 0),
+    Op.LREMOVE: (0, 0),
+}
+
+
+def _call_of(code: list[Instruction], start: int) -> int | None:
+    """The index of the `callc`/`calls` that pops, as its ignored self slot, the value just
+    below the closure on top of the stack before `code[start]`; None if anything else
+    may read that value first (or the arguments jump, return or stop)."""
+    above = 1  # values on top of the watched one: the closure
+    for i in range(start, len(code)):
+        ins = code[i]
+        if ins.op is Op.CALLC or ins.op is Op.CALLS:
+            prev = code[i - 1]
+            if prev.op is not Op.PUSHI or not isinstance(prev.arg, int) or prev.arg < 0:
+                return None
+            popped = prev.arg + 3  # the count, the arguments, the closure, the self slot
+            if popped == above + 1:
+                return i
+            if popped > above:
+                return None
+            above += 1 - popped
+            continue
+        effect = _STACK_EFFECT.get(ins.op)
+        if effect is None or effect[0] > above:
+            return None
+        above += effect[1] - effect[0]
+    return None
 
 
 def _read_capped(path: Path) -> bytes:

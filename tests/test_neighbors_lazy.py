@@ -146,3 +146,27 @@ def test_a_jump_into_a_member_read_counts_as_any_use() -> None:
         "\tpop\n\tdone\n"
     )
     assert _asm_reads(body) is None
+
+
+def test_a_method_calls_copy_of_the_table_must_reach_the_call_unread() -> None:
+    # `neighbors.get(5)`: the `dup` leaves the table in the self slot `callc` pops unread.
+    call = "\tpushs 0\n\tgload\n\tdup\n\tpushs 1\n\ttget\n\tpushi 5\n\tpushi 1\n\tcallc\n"
+    assert _asm_reads(call + "\tpop\n\tdone\n") == frozenset({"get"})
+    # Hand-made code that pops down to that copy could keep the table: any use.
+    leak = "\tpushs 0\n\tgload\n\tdup\n\tpushs 1\n\ttget\n\tpop\n\tpop\n\tdone\n"
+    assert _asm_reads(leak) is None
+    # A call of no arguments pops it as its self slot too.
+    bare = "\tpushs 0\n\tgload\n\tdup\n\tpushs 1\n\ttget\n\tpushi 0\n\tcallc\n\tdone\n"
+    assert _asm_reads(bare) == frozenset({"get"})
+    # A count of more arguments than were pushed takes the copy as an argument: any use.
+    wide = "\tpushs 0\n\tgload\n\tdup\n\tpushs 1\n\ttget\n\tpushi 2\n\tcallc\n\tdone\n"
+    assert _asm_reads(wide) is None
+
+
+def test_nested_method_calls_read_only_through_methods() -> None:
+    assert _reads("function step() { neighbors.get(neighbors.count() + 1) }") == frozenset(
+        {"get", "count"}
+    )
+    assert _reads(
+        "function step() { neighbors.foreach(function(r, d) { neighbors.get(r) }) }"
+    ) == frozenset({"get", "foreach"})
