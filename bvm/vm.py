@@ -28,7 +28,7 @@ from bvm.interp import TOPLEVEL, Halt, interpret, recorded_pcs
 from bvm.opcodes import Op
 from bvm.program import Program
 from bvm.translate import DEFAULT_OPTIONS, TranslateOptions
-from bvm.values import Closure, to_buzz, to_python, type_name
+from bvm.values import Closure, Table, to_buzz, to_python, type_name
 
 if TYPE_CHECKING:
     from bvm.stdlib.rng import MersenneTwister
@@ -548,6 +548,17 @@ class VM:
     def namespace(self) -> dict[str, Any]:
         """The module globals of translated code (shared: it holds the Buzz globals)."""
         return self.globals
+
+    @staticmethod
+    def member(table: Table, key: Any) -> Any:
+        """`table.get(key)`: what the translator reads of a global table's member (a
+        translation shared between VMs reads it through a Recorder, which notes it)."""
+        return table.get(key)
+
+    @staticmethod
+    def path_of(value: Any) -> None:
+        """None: a VM does not note how the translator read values (a Recorder does)."""
+        return None
 
     # ------------------------------------------------------------ swarm host interface
 

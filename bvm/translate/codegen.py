@@ -164,8 +164,7 @@ class Codegen:
 
     def path_of(self, value: Any) -> tuple[Any, ...] | None:
         """How the host read `value` (a recording host only, see shared.py)."""
-        path_of = getattr(self.vm, "path_of", None)
-        return None if path_of is None else path_of(value)
+        return self.vm.path_of(value)
 
     def pop(self) -> Expr:
         """Pop a symbolic entry; NotStructured on underflow (hand-made bytecode)."""
@@ -867,8 +866,7 @@ class Codegen:
             self.emit(f"{t} = {tc}[{kv}]", at, SHIFTED)
         origin = None
         if tab.origin.__class__ is Table and k.ty in (STR, INT):
-            member = getattr(self.vm, "member", None)  # a recording host notes the read
-            origin = tab.origin.get(k.const) if member is None else member(tab.origin, k.const)
+            origin = self.vm.member(tab.origin, k.const)
         self.stack.append(Expr(t, origin=origin))
 
     def tput(self, ins: Instruction) -> None:

@@ -41,3 +41,11 @@ class TranslatorHost(Protocol):
     def namespace(self) -> dict[str, Any]:
         """The module globals translated code runs in."""
         ...
+
+    def member(self, table: Any, key: Any) -> Any:
+        """`table.get(key)` of a table read earlier (a recording host notes the read)."""
+        ...
+
+    def path_of(self, value: Any) -> tuple[Any, ...] | None:
+        """How a recording host read `value`; None for any other host."""
+        ...
