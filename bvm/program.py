@@ -15,8 +15,9 @@ from pathlib import Path
 
 from bvm import srcmap as _srcmap
 from bvm.errors import BuzzLoadError
-from bvm.opcodes import ADDRESS_OPS, FIRST_ARG_OPCODE, NUM_OPCODES, Op
+from bvm.opcodes import FIRST_ARG_OPCODE, NUM_OPCODES, Op
 from bvm.srcmap import Position, SourceMap
+from bvm.sweep import GlobalUse, global_use
 
 _log = logging.getLogger("bvm")
 
@@ -77,7 +78,7 @@ class Program:
     _plan: tuple[tuple[tuple[str, int], ...], int] | bool | None = field(
         default=None, init=False, repr=False, compare=False
     )
-    _member_reads: dict[str, frozenset[str] | None] = field(
+    _global_uses: dict[str, GlobalUse] = field(
         default_factory=dict, init=False, repr=False, compare=False
     )
 
@@ -184,56 +185,15 @@ class Program:
 
     def member_reads(self, name: str) -> frozenset[str] | None:
         """The keys the code reads from global `name` as `name.k` or `name.k(...)`, if
-        that is all it does with it; None if the value may go anywhere else (stored,
-        passed, iterated, written to, or any global read by a computed name).
+        that is all it does with it; None if the value may go anywhere else (bvm/sweep.py)."""
+        return self.global_use(name).keys
 
-        A linear sweep of the code, for any bytecode: every jump and closure must land on
-        an instruction of the sweep and outside the patterns, so no other path enters
-        them; a method call's `dup` copy must stay below the closure, with nothing
-        reading it, until the `callc` that pops it as its ignored self slot
-        (docs/bytecode.md#calls), its arguments neither jumping nor returning."""
-        found = self._member_reads.get(name, False)
-        if found is False:
-            found = self._member_reads[name] = self._scan_member_reads(name)
-        return found  # type: ignore[return-value]  # False was replaced
-
-    def _scan_member_reads(self, name: str) -> frozenset[str] | None:
-        code: list[Instruction] = []
-        pc = self.code_start
-        while (ins := self.decode(pc)) is not None:
-            code.append(ins)
-            pc = ins.next if ins.op is not Op.DONE else pc + 1
-        starts = {ins.addr for ins in code}
-        targets = {ins.int_arg for ins in code if ins.op in ADDRESS_OPS}
-        if not targets <= starts:
-            return None
-        keys: set[str] = set()
-        inside: set[int] = set()  # instructions after the first of each pattern
-        for i, ins in enumerate(code):
-            if ins.op is not Op.GLOAD:
-                continue
-            if i == 0 or code[i - 1].op is not Op.PUSHS or ins.addr in targets:
-                return None  # a global read by a computed name
-            if self.string(code[i - 1].int_arg) != name:
-                continue
-            j = i + 1 + (i + 1 < len(code) and code[i + 1].op is Op.DUP)
-            key = code[j] if j < len(code) else None
-            get = code[j + 1] if j + 1 < len(code) else None
-            if key is None or get is None or key.op is not Op.PUSHS or get.op is not Op.TGET:
-                return None
-            k = self.string(key.int_arg)
-            if k is None:
-                return None
-            end: int | None = j + 1
-            if j > i + 1:  # a method call: the copy must reach `callc` as its self, unread
-                end = _call_of(code, j + 2)
-            if end is None:
-                return None
-            keys.add(k)
-            inside.update(c.addr for c in code[i : end + 1])
-        if targets & inside:
-            return None
-        return frozenset(keys)
+    def global_use(self, name: str) -> GlobalUse:
+        """What the code does with global `name` (bvm/sweep.py), swept once."""
+        found = self._global_uses.get(name)
+        if found is None:
+            found = self._global_uses[name] = global_use(self, name)
+        return found
 
     def string(self, sid: int) -> str | None:
         """The string a `pushs` id names, or None when no string has that id."""
@@ -275,51 +235,6 @@ class Program:
                 word = word - 0x100000000 if word & 0x80000000 else word
             arg = word
         return Instruction(pc, op, arg, pc + 5)
-
-
-# (popped, pushed) of the opcodes a call's arguments may hold; `callc`/`calls` apart.
-_STACK_EFFECT: dict[Op, tuple[int, int]] = {
-    Op.NOP: (0, 0),
-    Op.PUSHNIL: (0, 1),
-    Op.DUP: (1, 2),
-    Op.POP: (1, 0),
-    **{op: (2, 1) for op in (Op.ADD, Op.SUB, Op.MUL, Op.DIV, Op.MOD, Op.POW, Op.LAND)},
-    **{op: (2, 1) for op in (Op.LOR, Op.BAND, Op.BOR, Op.LSHIFT, Op.RSHIFT, Op.EQ, Op.NEQ)},
-    **{op: (2, 1) for op in (Op.GT, Op.GTE, Op.LT, Op.LTE, Op.TGET)},
-    **{op: (1, 1) for op in (Op.UNM, Op.LNOT, Op.BNOT, Op.GLOAD)},
-    Op.GSTORE: (2, 0),
-    Op.PUSHT: (0, 1),
-    Op.TPUT: (3, 0),
-    **{op: (0, 1) for op in (Op.PUSHF, Op.PUSHI, Op.PUSHS, Op.PUSHCN, Op.PUSHCC, Op.PUSHL)},
-    Op.LLOAD: (0, 1),
-    Op.LSTORE: (1, 0),
-    Op.LREMOVE: (0, 0),
-}
-
-
-def _call_of(code: list[Instruction], start: int) -> int | None:
-    """The index of the `callc`/`calls` that pops, as its ignored self slot, the value just
-    below the closure on top of the stack before `code[start]`; None if anything else
-    may read that value first (or the arguments jump, return or stop)."""
-    above = 1  # values on top of the watched one: the closure
-    for i in range(start, len(code)):
-        ins = code[i]
-        if ins.op is Op.CALLC or ins.op is Op.CALLS:
-            prev = code[i - 1]
-            if prev.op is not Op.PUSHI or not isinstance(prev.arg, int) or prev.arg < 0:
-                return None
-            popped = prev.arg + 3  # the count, the arguments, the closure, the self slot
-            if popped == above + 1:
-                return i
-            if popped > above:
-                return None
-            above += 1 - popped
-            continue
-        effect = _STACK_EFFECT.get(ins.op)
-        if effect is None or effect[0] > above:
-            return None
-        above += effect[1] - effect[0]
-    return None
 
 
 def _read_capped(path: Path) -> bytes:

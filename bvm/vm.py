@@ -198,8 +198,9 @@ class VM:
 
     #: `set_neighbor_columns(ids, distances, azimuths)`: the fast `set_neighbors` for a host
     #: that computes a whole swarm at once: the same neighbours as columns, every distance
-    #: and azimuth already a binary32 value, every id valid (0..65535) and every elevation 0.
-    #: Nothing is checked.
+    #: and azimuth already a binary32 value, every id valid (0..65535) and distinct, every
+    #: elevation 0. Nothing is checked, and the lists are kept (not copied) until the next
+    #: call: the host must not change them.
     set_neighbor_columns: Callable[[list[int], list[float], list[float]], None]
 
     #: The generator behind `math.rng`, made by the library's installation at `load`.
@@ -511,6 +512,12 @@ class VM:
         key = (addr, n_actrec)
         e = self._entries.get(key)
         if e is None:
+            neighbors = self.neighbors
+            if neighbors.lazy and self.program is not None:
+                # Code entered where the sweep did not look (a closure received over
+                # the radio may name any offset) might read `poses` directly.
+                if not self.program.global_use("neighbors").enters_cleanly(addr):
+                    neighbors.stop_lazy()
             shapes = self._shapes[addr] = self._shapes.get(addr, 0) + 1
             interpret_only = not self.translate or shapes > _MAX_SHAPES
             e = self._entries[key] = Entry(self, addr, n_actrec, interpret_only)
@@ -535,6 +542,8 @@ class VM:
 
     def __getitem__(self, name: str) -> Any:
         """A global as a Python value (tables become dicts)."""
+        if name == "neighbors":
+            self.settle()  # the host sees `poses` even while a lazy table waits for use
         return to_python(self.gload(name))
 
     def __setitem__(self, name: str, value: Any) -> None:
@@ -543,6 +552,7 @@ class VM:
 
     def buzz_globals(self) -> dict[str, Any]:
         """The Buzz-visible globals (without the translator's helpers)."""
+        self.settle()
         return {k: v for k, v in self.globals.items() if not k.startswith("_")}
 
     def namespace(self) -> dict[str, Any]:

@@ -3,14 +3,18 @@ what it would see with the tables made every step."""
 
 from __future__ import annotations
 
+import struct
+
 import pytest
 from buzzhost import make_robot
 from hypothesis import given
 from hypothesis import strategies as st
 
 import bvm
+from bvm import wire
 from bvm.digest import state_digest
-from bvm.values import f32
+from bvm.sweep import MAX_SWEPT_BYTES
+from bvm.values import f32, format_log
 
 # Every query method, identities included: `get` twice gives the same table, and the table
 # `get` gave is the one `foreach` and `poses`-carrying derived tables hand out afterwards.
@@ -170,3 +174,77 @@ def test_nested_method_calls_read_only_through_methods() -> None:
     assert _reads(
         "function step() { neighbors.foreach(function(r, d) { neighbors.get(r) }) }"
     ) == frozenset({"get", "foreach"})
+
+
+RECEIVER = """
+var s = "poses"
+function step() { log("count ", neighbors.count()) }
+neighbors.listen("f", function(t, v, s) { log("got ", v()) })
+"""
+
+
+def _op(op: int, arg: int | None = None) -> bytes:
+    return bytes([op]) + (struct.pack("<i", arg) if arg is not None else b"")
+
+
+@pytest.mark.parametrize("translate", [True, False], ids=["translated", "interpreted"])
+def test_a_closure_received_into_code_the_sweep_did_not_see(translate: bool) -> None:
+    # A peer sends a closure whose offset lies past a byte the sweep could not decode,
+    # where `neighbors.poses` is read directly: the robot must see it as if made eagerly.
+    base = bvm.compile_source(RECEIVER, "r.bzz")
+    nb, po = base.strings.index("neighbors"), base.strings.index("poses")
+    hidden = _op(37, nb) + _op(28) + _op(37, po) + _op(32) + _op(6)  # pushs gload pushs tget ret1
+    program = bvm.Program(base.bytecode + b"\xff" + hidden, base.debug, "r.bo")
+    assert program.member_reads("neighbors") == frozenset({"count", "listen"})
+    closure = wire.WireClosure(False, len(base.bytecode) + 1)
+    payload = wire.encode(wire.Broadcast(topic="f", value=closure))
+    outputs = []
+    for lazy in (True, False):
+        vm = bvm.VM(robot_id=1, translate=translate)
+        vm.load(program)
+        assert vm.neighbors.lazy
+        vm.neighbors.lazy = lazy
+        lines: list[str] = []
+        vm.register("log", lambda *a, out=lines: out.append(format_log(a)))
+        vm.execute()
+        for _ in range(2):
+            vm.receive(7, payload)
+            vm.process_inbox()
+            vm.set_neighbor_columns([2, 3], [f32(1.0), f32(2.0)], [0.0, 0.0])
+            vm.call("step")
+        outputs.append(lines)
+        assert not vm.neighbors.lazy  # that code may read anything from now on
+    assert (
+        outputs[0] == outputs[1] == ["got [nil]", "count 2", "got [table with 2 elems]", "count 2"]
+    )
+
+
+def test_the_host_reading_neighbors_sees_its_poses() -> None:
+    vm, _ = _robot(COUNT_ONLY, True, True)
+    vm.set_neighbor_columns([2], [f32(1.5)], [0.0])
+    assert vm["neighbors"]["poses"] == {2: {"distance": 1.5, "azimuth": 0.0, "elevation": 0.0}}
+    vm.set_neighbor_columns([4], [f32(2.5)], [0.0])
+    assert sorted(vm.buzz_globals()["neighbors"]["poses"]) == [4]
+
+
+def test_deeply_nested_method_calls_and_large_programs() -> None:
+    # Each call's copy is followed in one pass, however deep the nesting.
+    depth = 300
+    body = "\tpushs 0\n\tgload\n\tdup\n\tpushs 1\n\ttget\n" * depth + "\tpushi 0\n\tcallc\n"
+    body += "\tpushi 1\n\tcallc\n" * (depth - 1) + "\tpop\n\tdone\n"
+    assert _asm_reads(body) == frozenset({"get"})
+    # Past MAX_SWEPT_BYTES nothing is swept: any use.
+    small = bvm.compile_source("function step() { neighbors.count() }", "s.bzz")
+    big = bvm.Program(small.bytecode + bytes(MAX_SWEPT_BYTES), small.debug, "big.bo")
+    assert small.member_reads("neighbors") == frozenset({"count"})
+    assert big.member_reads("neighbors") is None
+
+
+@given(code=st.binary(min_size=1, max_size=400))
+def test_the_sweep_survives_any_code(code: bytes) -> None:
+    # Any bytes after a valid string table: an answer, never an exception.
+    base = bvm.compile_source("function step() { neighbors.get(1) }", "f.bzz")
+    program = bvm.Program(base.bytecode[: base.code_start] + code, b"", "fuzz.bo")
+    use = program.global_use("neighbors")
+    assert use.keys is None or use.keys <= {"get"} | set(program.strings)
+    assert not use.enters_cleanly(-1) and not use.enters_cleanly(len(program.bytecode))

@@ -78,8 +78,9 @@ class Neighbors:
         self.table[POSES] = poses
 
     def set_columns(self, ids: list[int], distances: list[float], azimuths: list[float]) -> None:
-        """`set` for values already rounded to binary32 and valid ids, elevations 0: what a
-        simulator computes for a whole swarm at once. With `lazy`, the tables are made
+        """`set` for values already rounded to binary32 and valid, distinct ids, elevations
+        0: what a simulator computes for a whole swarm at once. The lists are kept, not
+        copied, until the next call. With `lazy`, the tables are made
         when a method first needs them: most steps of most robots need none or few."""
         if self.lazy:
             if len(ids) != len(distances) or len(ids) != len(azimuths):
@@ -114,6 +115,12 @@ class Neighbors:
             self.table[POSES] = self._poses(*pending)
             self._pending = None
             self._entries = {}
+
+    def stop_lazy(self) -> None:
+        """Make `poses` now and every step from now on (code the sweep did not see may
+        read the table directly)."""
+        self._settle()
+        self.lazy = False
 
     def poses(self) -> Table | None:
         """This step's `poses` table of the global `neighbors` (made now if pending)."""
