@@ -43,6 +43,16 @@ def methods_only(program: Program) -> bool:
     return reads is not None and reads <= NEIGHBOR_METHODS
 
 
+def _pose(distance: float, azimuth: float) -> Table:
+    """One neighbour's entry of `poses` from a simulator's columns (elevation 0)."""
+    # Item stores: a third faster than keyword arguments (every neighbour of a swarm).
+    entry = Table()
+    entry["distance"] = distance
+    entry["azimuth"] = azimuth
+    entry["elevation"] = 0.0
+    return entry
+
+
 class Neighbors:
     """The neighbors state of one VM: topic listeners and the derived-table methods."""
 
@@ -98,14 +108,7 @@ class Neighbors:
         poses = Table()
         for rid, distance, azimuth in zip(ids, distances, azimuths, strict=True):
             entry = made.get(rid) if made else None
-            if entry is None:
-                # Item stores: a third faster than keyword arguments, and this runs for
-                # every neighbour of every robot of a simulated swarm, every tick.
-                entry = Table()
-                entry["distance"] = distance
-                entry["azimuth"] = azimuth
-                entry["elevation"] = 0.0
-            poses[rid] = entry
+            poses[rid] = _pose(distance, azimuth) if entry is None else entry
         return poses
 
     def _settle(self) -> None:
@@ -139,10 +142,7 @@ class Neighbors:
                 i = ids.index(rid)  # == as the table's lookup compares (3.0 finds 3)
             except ValueError:
                 return None
-            made[rid] = entry = Table()
-            entry["distance"] = distances[i]
-            entry["azimuth"] = azimuths[i]
-            entry["elevation"] = 0.0
+            made[rid] = entry = _pose(distances[i], azimuths[i])
         return entry
 
     # ------------------------------------------------------------ script side
