@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 from harness import Harness
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 from test_behaviors import BARRIER_PROBE, INCLUDE, SCRIPTS, StandIn
 
@@ -328,3 +328,73 @@ def test_the_kept_swarm_size_is_the_count_of_robots_heard_lately(
         vm.call("flow_update_seen")  # what every SEEN_PERIOD-th step does
         for rid in ids:
             seen[rid] = tick
+
+
+RECOUNT_PROBE = """
+include "include/barrier.bzz"
+function init() { B = barrier_new(7, 3, 5) }
+function step() {}
+function hear(msg, sender) { barrier_heard(BARRIER_TOPIC, msg, sender) }
+function leave() { barrier_leave(B) }
+function enter() { barrier_enter(B.st) }
+function rooted() { B = barrier_new_at(7, 3, 5, 4) }
+function kept_is_fresh() {
+  var st = B.st
+  barrier_age(st)
+  var kept = {.c = st.count, .m = st.mask, .q0 = st.q0, .q1 = st.q1, .f = st.complete}
+  st.stale = 1
+  barrier_recount(st)
+  return kept.c == st.count and kept.m == st.mask and kept.q0 == st.q0
+         and kept.q1 == st.q1 and kept.f == st.complete
+}
+"""
+
+
+@functools.cache
+def _recount_probe() -> bvm.Program:
+    return bvm.compile_source(RECOUNT_PROBE, "recount.bzz", [str(SCRIPTS)])
+
+
+_message = st.tuples(
+    st.integers(2, 6),  # sender
+    st.integers(0, 4),  # root it names
+    st.sampled_from([1, 2, 3]),  # its parent: us (1) or another
+    st.integers(-1, 3),  # its distance to the root (-1: none)
+    st.integers(0, 1),  # complete
+    st.integers(0, 3),  # its report's number
+    st.integers(0, 9),  # its count
+)
+
+
+@given(
+    events=st.lists(
+        st.one_of(_message, st.sampled_from(["leave", "enter", "rooted"])), max_size=30
+    )
+)
+# A child of root 1 (us), then a robot that is not our child names root 0: we move to it,
+# and the child no longer counts.
+@example(events=[(2, 1, 1, 1, 0, 0, 3), (3, 0, 2, 0, 0, 0, 1)])
+# A child of root 1 (us) that then takes another parent.
+@example(events=[(2, 1, 1, 1, 0, 0, 3), (2, 1, 3, 1, 0, 0, 3)])
+# A child of root 1 (us), then the barrier is made again rooted at robot 4.
+@example(events=[(2, 1, 1, 1, 0, 0, 3), "rooted"])
+def test_the_kept_barrier_count_is_the_count_made_afresh(
+    events: list[tuple[int, int, int, int, int, int, int] | str],
+) -> None:
+    # barrier_recount sums the children's reports again only when the children, the
+    # root or our own part changed: after any sequence of messages it must give what a
+    # fresh sum gives.
+    vm = bvm.VM(robot_id=1)
+    vm.load(_recount_probe())
+    ScriptAPI(vm).install()
+    vm.execute()
+    vm.call("init")
+    for event in events:
+        if isinstance(event, str):
+            vm.call(event)
+        else:
+            sender, root, parent, dist, complete, number, count = event
+            h = 5 * 32768 + (dist + 1) * 16 + complete * 8 + number * 2
+            msg = {"k": 7, "c": 3, "r": root, "p": parent, "h": h, "s": count * 32768, "m": 0}
+            vm.call("hear", msg, sender)
+        assert vm.call("kept_is_fresh") == 1
