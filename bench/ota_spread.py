@@ -50,7 +50,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import bvm
-from fieldkit.sim.simulator import TICK_S, SimConfig, Simulation, StartPose, tuned_collector
+from fieldkit.sim.simulator import TICK_S, SimConfig, Simulation, StartPose, tuned_memory
 from fieldkit.sim.updates import SimUpdate
 from fieldkit.update.agent import Switch
 from fieldkit.update.packets import Phase
@@ -223,7 +223,7 @@ def run_one(topology: str, n: int, drop: float, seed: int) -> Run:
     known: list[int] = []
     settled_at: int | None = None
     total = round(MAX_S / TICK_S)
-    with tuned_collector():
+    with tuned_memory():
         while sim.tick < total:
             if sim.tick == inject_tick:
                 at_inject = (updates.bytes_sent(), sum(sim.radio.bytes_sent.values()))

@@ -65,7 +65,7 @@ from fieldkit.sim.simulator import (
     RcCommand,
     SimConfig,
     Simulation,
-    tuned_collector,
+    tuned_memory,
 )
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -169,7 +169,7 @@ def mission_rate(mission: str, robots: int) -> tuple[float, dict[str, float], fl
     tasks = min(robots, TA_TASKS)  # a smaller swarm never forms it: "not done"
     end: int | None = None
     outcome = "not done"
-    with tuned_collector():  # as `Simulation.run` steps a swarm it has built
+    with tuned_memory():  # as `Simulation.run` steps a swarm it has built
         while sim.tick < cap:
             phase = _phase(sim)
             t1 = time.process_time()
@@ -305,7 +305,7 @@ def main() -> None:
         f" {'gossip s':>9s}  states"
     )
     for n in sizes:
-        with tuned_collector():  # as `Simulation.run` steps
+        with tuned_memory():  # as `Simulation.run` steps
             tps, whole, gossip, states = ticks_per_second(n, args.measure)
         results.append((n, tps))
         print(

@@ -83,7 +83,7 @@ def run_with_ground(
     """Run `sim` in real time with its ground station until `seconds` (None: Ctrl-C or
     SIGTERM, a normal end: the results are written as for any run)."""
     from fieldkit.ground.live import attach, run_live
-    from fieldkit.sim.simulator import tuned_collector
+    from fieldkit.sim.simulator import tuned_memory
 
     try:
         live = attach(sim, keys, http_port=http_port, **drawing(globals_, sim.config.script.name))
@@ -95,7 +95,7 @@ def run_with_ground(
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        with tuned_collector():
+        with tuned_memory():
             run_live(sim, seconds, stop=stop, after_step=after_step)
     except KeyboardInterrupt:
         typer.echo("ground: stopped", err=True)

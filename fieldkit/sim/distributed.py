@@ -57,7 +57,7 @@ from fieldkit.sim.simulator import (
     log_line,
     run_ticks,
     start_grid,
-    tuned_collector,
+    tuned_memory,
 )
 from fieldkit.update.release import Release
 
@@ -183,7 +183,7 @@ class SwarmPart:
         sim = self.sim
         if sim.tick != t:
             raise RuntimeError(f"part at tick {sim.tick} asked for tick {t}")
-        with tuned_collector():
+        with tuned_memory():
             sim._radio_in(t, receptions)
             neighbors = sim._neighbors(t)
             sim._step_robots(t, rcs, neighbors)

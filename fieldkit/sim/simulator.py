@@ -43,6 +43,7 @@ from fieldkit.robot.runtime import RobotRuntime
 from fieldkit.robot.safety import Order
 from fieldkit.robot.script_api import ON_GROUND, Sensors
 from fieldkit.sim.attacker import ATTACKS, Attacker
+from fieldkit.sim.hugepages import HEAP
 from fieldkit.sim.radio import LinkModel, RadioModel, Reception
 from fieldkit.sim.updates import SimUpdate, SwarmUpdates
 from fieldkit.update.release import Release
@@ -97,21 +98,31 @@ def log_line(t: float, robot: int, text: str) -> str:
 
 
 @contextlib.contextmanager
-def tuned_collector() -> Iterator[None]:
-    """Garbage collection tuned for stepping a swarm (what `Simulation.run` steps in).
+def tuned_memory() -> Iterator[None]:
+    """Garbage collection and page size tuned for stepping a swarm (what `Simulation.run`
+    steps in).
 
     Every tick allocates thousands of short-lived tables; the default collector thresholds
     make it rescan the (large, long-lived) VMs over and over. Freeze what exists and collect
-    young objects less often: 40-60% faster, same results.
+    young objects less often: 40-60% faster, same results. And back the heap with huge pages
+    (hugepages.py), again after each young collection, which follows the heap's growth.
     """
     threshold = gc.get_threshold()
     gc.freeze()
     gc.set_threshold(50_000, 20, 100)
+    HEAP.back()
+    gc.callbacks.append(_heap_grown)
     try:
         yield
     finally:
+        gc.callbacks.remove(_heap_grown)
         gc.set_threshold(*threshold)
         gc.unfreeze()
+
+
+def _heap_grown(phase: str, info: dict[str, int]) -> None:
+    if phase == "stop" and info["generation"] == 0:
+        HEAP.back()
 
 
 @contextlib.contextmanager
@@ -145,7 +156,7 @@ def run_ticks(
 ) -> None:
     """Step `sim` until its tick reaches `total`, with the tuned collector; `after_step()`
     and `progress(ticks_done, total)` after every tick."""
-    with tuned_collector():
+    with tuned_memory():
         while sim.tick < total:
             sim.step()
             if after_step is not None:
@@ -917,7 +928,7 @@ __all__ = [
     "in_range",
     "log_line",
     "start_grid",
-    "tuned_collector",
+    "tuned_memory",
     "run_ticks",
     "BundleTally",
     "Steppable",

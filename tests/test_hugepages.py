@@ -1,0 +1,108 @@
+"""Huge pages for the simulator's heap (fieldkit/sim/hugepages.py): which mappings are
+asked for, that the kernel gives them where it can, and that a run is the same with and
+without them."""
+
+from __future__ import annotations
+
+import gc
+from pathlib import Path
+
+import pytest
+
+from fieldkit.sim import hugepages
+from fieldkit.sim.hugepages import HUGE_PAGE, HugePages, eligible
+from fieldkit.sim.simulator import SimConfig, Simulation, tuned_memory
+
+MIB = 1 << 20
+
+MAPS = """\
+55d0c0a00000-55d0c0a2a000 r--p 00000000 00:21 123  /usr/bin/python3.11
+55d0c1000000-55d0c1a00000 rw-p 00000000 00:00 0    [heap]
+7f0000000000-7f0000100000 rw-p 00000000 00:00 0
+7f0000100000-7f0000700000 rw-p 00000000 00:00 0
+7f0001000000-7f0001001000 ---p 00000000 00:00 0
+7f0001001000-7f0001801000 rw-p 00000000 00:00 0
+7f0002000000-7f0002600000 rw-p 00000000 00:21 99   /tmp/some.file
+7f0003000000-7f0003400000 r-xp 00000000 00:00 0
+7ffc00000000-7ffc00800000 rw-p 00000000 00:00 0    [stack]
+"""
+
+
+def test_only_the_heap_and_anonymous_arenas_are_asked_for_in_whole_huge_pages() -> None:
+    assert eligible(MAPS) == [
+        (0x55D0C1000000, 0x55D0C1A00000 & ~(HUGE_PAGE - 1)),  # the heap, its last part cut
+        (0x7F0000200000, 0x7F0000600000),  # an arena, cut to the 2 MiB boundaries
+    ]
+    # Not: the program's text, a 1 MiB arena (less than a huge page), a thread's stack
+    # (after its guard page), a file's pages, code, the main stack.
+
+
+def test_nothing_is_asked_for_when_the_system_has_no_huge_pages(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    mode = tmp_path / "enabled"
+    mode.write_text("always madvise [never]\n")
+    monkeypatch.setattr(hugepages, "_MODE", mode)
+    assert not hugepages.supported()
+    assert HugePages().back() == 0
+    mode.write_text("always [madvise] never\n")
+    monkeypatch.setenv("FIELDKIT_HUGE_PAGES", "0")
+    assert not hugepages.supported()
+    assert HugePages().back() == 0
+
+
+@pytest.mark.skipif(not hugepages.supported(), reason="no transparent huge pages here")
+def test_the_heap_is_backed_by_huge_pages_once() -> None:
+    pages = HugePages()
+    block = bytearray(64 * MIB)  # a heap part of its own, touched
+    block[::4096] = b"x" * len(block[::4096])
+    asked = pages.back()
+    assert asked >= 32 * MIB
+    assert pages.back() == 0  # nothing new since
+    huge = sum(
+        int(line.split()[1])
+        for line in Path("/proc/self/smaps_rollup").read_text().splitlines()
+        if line.startswith("AnonHugePages:")
+    )
+    if pages.collapsed:  # Linux >= 6.1 makes them at once
+        assert huge * 1024 >= 2 * HUGE_PAGE
+    del block
+
+
+def _run(robots: int, ticks: int) -> list[tuple[object, ...]]:
+    script = Path(__file__).resolve().parent.parent / "buzz_scripts" / "coverage.bzz"
+    sim = Simulation(SimConfig(script=script, robots=robots, seconds=1e6, seed=3))
+    with tuned_memory():
+        for _ in range(ticks):
+            sim.step()
+    return [(r.vehicle.position, r.state, dict(r.vm.counters)) for r in sim.robots.values()]
+
+
+def test_a_run_is_the_same_with_and_without_huge_pages(monkeypatch: pytest.MonkeyPatch) -> None:
+    with_pages = _run(12, 40)
+    monkeypatch.setenv("FIELDKIT_HUGE_PAGES", "0")
+    off = HugePages()
+    monkeypatch.setattr("fieldkit.sim.simulator.HEAP", off)
+    assert _run(12, 40) == with_pages
+    assert off.backed == 0
+
+
+def test_tuned_memory_follows_the_heap_after_young_collections(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    calls: list[int] = []
+
+    class Counting(HugePages):
+        def back(self) -> int:
+            calls.append(1)
+            return 0
+
+    monkeypatch.setattr("fieldkit.sim.simulator.HEAP", Counting())
+    with tuned_memory():
+        assert len(calls) == 1  # on entry
+        gc.collect(0)
+        assert len(calls) == 2  # after a young collection
+        gc.collect(1)
+        assert len(calls) == 2  # an older one follows no growth of its own
+    gc.collect(0)
+    assert len(calls) == 2  # no longer once left
