@@ -367,9 +367,7 @@ _message = st.tuples(
 
 
 @given(
-    events=st.lists(
-        st.one_of(_message, st.sampled_from(["leave", "enter", "rooted"])), max_size=30
-    )
+    events=st.lists(st.one_of(_message, st.sampled_from(["leave", "enter", "rooted"])), max_size=30)
 )
 # A child of root 1 (us), then a robot that is not our child names root 0: we move to it,
 # and the child no longer counts.
