@@ -136,6 +136,12 @@ def collector_paused() -> Iterator[None]:
         yield
     finally:
         if was:
+            if gc.get_freeze_count() == 0:
+                # The young generation now holds the whole swarm: the first allocation
+                # would scan it all in vain. Straight to the oldest generation instead
+                # (freeze, then unfreeze: no scan), where a full collection still sees it.
+                gc.freeze()
+                gc.unfreeze()
             gc.enable()
 
 

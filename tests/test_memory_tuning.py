@@ -1,6 +1,7 @@
-"""Huge pages for the simulator's heap (fieldkit/sim/hugepages.py): which mappings are
-asked for, that the kernel gives them where it can, and that a run is the same with and
-without them."""
+"""How the simulator tunes memory for a swarm: huge pages for its heap
+(fieldkit/sim/hugepages.py: which mappings are asked for, that the kernel gives them where
+it can, that a run is the same with and without them) and the collector around building
+and stepping it (simulator.collector_paused, tuned_memory)."""
 
 from __future__ import annotations
 
@@ -106,3 +107,13 @@ def test_tuned_memory_follows_the_heap_after_young_collections(
         assert len(calls) == 2  # an older one follows no growth of its own
     gc.collect(0)
     assert len(calls) == 2  # no longer once left
+
+
+def test_a_built_swarm_goes_to_the_oldest_generation_unscanned() -> None:
+    script = Path(__file__).resolve().parent.parent / "buzz_scripts" / "coverage.bzz"
+    assert gc.isenabled()
+    sim = Simulation(SimConfig(script=script, robots=8, seconds=1e6, seed=3))
+    # Built with the collector paused, then not scanned young (it would be in a younger
+    # generation: the young collections run every few hundred allocations), nor left frozen.
+    assert any(o is sim.robots for o in gc.get_objects(generation=2))
+    assert gc.get_freeze_count() == 0
