@@ -7,6 +7,7 @@ scale, with and without 90 % packet loss. Everything is seeded.
 
 from __future__ import annotations
 
+import functools
 import math
 import random
 from collections.abc import Callable
@@ -14,6 +15,8 @@ from pathlib import Path
 
 import pytest
 from harness import Harness
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import bvm
 from bvm.values import f32, format_log
@@ -331,10 +334,15 @@ def test_ground_robots_skip_takeoff() -> None:
     assert all(r.vehicle.z == 0.0 for r in sim.robots.values())
 
 
+@functools.cache
+def _coverage_program() -> bvm.Program:
+    return bvm.compile_file(SCRIPTS / "coverage.bzz")
+
+
 def coverage_vm() -> bvm.VM:
     """coverage.bzz loaded (global code run), for calling its functions directly."""
     vm = bvm.VM(robot_id=1)
-    vm.load(bvm.compile_file(SCRIPTS / "coverage.bzz"))
+    vm.load(_coverage_program())
     vm.register("log", lambda *args: None)
     vm.execute()
     return vm
@@ -459,8 +467,35 @@ function region(centres, count, margin, sides) {
     ],
 )
 def test_region_is_the_one_first_written(centres: list[tuple[float, float]], margin: float) -> None:
+    assert_region_as_first_written(centres, margin)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    centres=st.lists(
+        st.tuples(st.integers(-60, 60).map(float), st.integers(-60, 60).map(float)),
+        min_size=1,
+        max_size=5,
+    ),
+    margin=st.sampled_from([0.0, 0.004, 5.0, 20.0, 35.0]),
+)
+def test_random_regions_are_the_ones_first_written(
+    centres: list[tuple[float, float]], margin: float
+) -> None:
+    # Whole-metre centres make collinear corners and exact ties, where the gift wrapping's
+    # choices are most fragile.
+    assert_region_as_first_written(centres, margin)
+
+
+@functools.cache
+def _region_reference() -> bvm.Program:
+    return bvm.compile_source(REGION_AS_FIRST_WRITTEN, "ref.bzz", [str(SCRIPTS)])
+
+
+def assert_region_as_first_written(centres: list[tuple[float, float]], margin: float) -> None:
+    """coverage.bzz builds, from these hotspots, the region the first written code built."""
     reference = bvm.VM(robot_id=1)
-    reference.load(bvm.compile_source(REGION_AS_FIRST_WRITTEN, "ref.bzz", [str(SCRIPTS)]))
+    reference.load(_region_reference())
     reference.execute()
     table = {k: {"x": f32(x), "y": f32(y)} for k, (x, y) in enumerate(centres)}
     want = reference.call("region", table, len(centres), f32(margin), 8)
