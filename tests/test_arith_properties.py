@@ -12,7 +12,7 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 import bvm
@@ -40,6 +40,12 @@ function tle(t) { return (t.a <= t.b) }
 function tlt0(t) { return (t.a < 0) }
 function tgtbig(t) { return (t.a > 16777217) }
 function tltf(t) { return (t.a < 0.5) }
+function ftadd(t) { var x = 0.75
+  return x + t.b }
+function tfsub(t) { var x = 0.75
+  return t.b - x }
+function ftmul(t) { var x = 3.0
+  return x * t.b }
 """
 
 
@@ -141,6 +147,22 @@ def test_untyped_float_sums_round_their_operands_first(translate: bool, a: float
     assert same_float(vm.call("tadd", t), np32("add", a32, b32)), (a, b)
     assert same_float(vm.call("tsub", t), np32("sub", a32, b32)), (a, b)
     assert same_float(vm.call("tmul", t), np32("mul", a32, b32)), (a, b)
+
+
+@PATHS
+@settings(max_examples=300, deadline=None)
+@given(b=st.one_of(FLOAT32, st.floats(allow_nan=False)))
+@example(b=2.0**-24 + 2.0**-50)  # rounds to 2**-24 first: 0.75 + it is then 0.75
+def test_a_typed_float_with_an_untyped_one_rounds_it_first(translate: bool, b: float) -> None:
+    """A float the translator knows (a literal in a local) with one read from a table: the
+    table's value is rounded to binary32 before the operation, as the rule does."""
+    vm = VMS[translate]
+    t = bvm.Table(b=b)
+    with np.errstate(over="ignore"):
+        b32 = float(np.float32(b))
+    assert same_float(vm.call("ftadd", t), np32("add", 0.75, b32)), b
+    assert same_float(vm.call("tfsub", t), np32("sub", b32, 0.75)), b
+    assert same_float(vm.call("ftmul", t), np32("mul", 3.0, b32)), b
 
 
 @PATHS

@@ -659,10 +659,12 @@ class Codegen:
             self.emit(f"else: {t} = {slow}({av}, {bv})", at)
             self.push(t, ANY)
         elif {ta, tb} == {FLOAT, ANY}:
-            unknown = a if ta == ANY else b
-            self.emit(f"if {unknown.code}.__class__ is _float:", at)
-            self.emit(f"    _F[0] = {av} {sym} {bv}", at)
-            self.emit(f"    {t} = _F[0]", at)
+            # The unknown float is rounded first, as the rule does: a host may have stored
+            # a double that is not binary32 (the known one is binary32 already).
+            unknown = av if ta == ANY else bv
+            expr = f"{t} {sym} {bv}" if ta == ANY else f"{av} {sym} {t}"
+            self.emit(f"if {unknown}.__class__ is _float:", at)
+            self.emit(f"    _F[0] = {unknown}; {t} = _F[0]; _F[0] = {expr}; {t} = _F[0]", at)
             self.emit(f"else: {t} = {slow}({av}, {bv})", at)
             self.push(t, FLOAT)
         else:
