@@ -640,22 +640,33 @@ class Codegen:
             # (Not for `*`: "ab" * 2**31 would allocate before any check.)
             self.emit(f"try: {t} = {av} {sym} {bv}", at)
             self.emit(f"except _TypeError: {t} = {slow}({av}, {bv})", at)
-            self.emit(
-                f"if {t}.__class__ is not _int or {t} > 1073741823 or {t} < -1073741823: "
-                f"{t} = _redo({slow}, {av}, {bv}, {t})",
-                at,
-            )
+            if ta == ANY and tb == ANY:
+                # Two floats (vector maths on table fields): the full rule written out.
+                self.emit(
+                    f"if {t}.__class__ is _float and {av}.__class__ is _float and "
+                    f"{bv}.__class__ is _float: {_round_both(t, av, sym, bv)}",
+                    at,
+                )
+                self.emit(
+                    f"elif {t}.__class__ is not _int or {t} > 1073741823 or {t} < -1073741823: "
+                    f"{t} = _redo({slow}, {av}, {bv}, {t})",
+                    at,
+                )
+            else:
+                self.emit(
+                    f"if {t}.__class__ is not _int or {t} > 1073741823 or {t} < -1073741823: "
+                    f"{t} = _redo({slow}, {av}, {bv}, {t})",
+                    at,
+                )
             self.push(t, ANY)
         elif ta in (INT, ANY) and tb in (INT, ANY):
             self.emit(f"if {self.int_test(a, b)}:", at)
             self.emit(f"    {t} = {av} {sym} {bv}", at)
             self.emit(f"    {self.wrap_check(t, ins.op, b)}", at)
             if ta == ANY and tb == ANY:
-                # Two floats (vector maths on table fields): Python's product, rounded once
-                # by `_redo` when both are binary32 (exact: 53 >= 2 * 24 + 2 bits); the
-                # full rule's type tests and three roundings cost three times more.
+                # Two floats (vector maths on table fields): the full rule written out.
                 self.emit(f"elif {av}.__class__ is _float and {bv}.__class__ is _float:", at)
-                self.emit(f"    {t} = _redo({slow}, {av}, {bv}, {av} {sym} {bv})", at)
+                self.emit(f"    {_round_both(t, av, sym, bv)}", at)
             self.emit(f"else: {t} = {slow}({av}, {bv})", at)
             self.push(t, ANY)
         elif {ta, tb} == {FLOAT, ANY}:
@@ -1015,6 +1026,15 @@ class Codegen:
 
 
 _ARITH = {Op.ADD: ("+", "_add"), Op.SUB: ("-", "_sub"), Op.MUL: ("*", "_mul")}
+
+
+def _round_both(t: str, a: str, sym: str, b: str) -> str:
+    """Statements (one line) setting `t` to ops' rule for two Python floats, f32(f32(a) sym
+    f32(b)), through the same binary32 cell: the same bits, NaNs and infinities included,
+    without a call (coverage's geometry does this thousands of times a robot)."""
+    return f"_F[0] = {a}; {t} = _F[0]; _F[0] = {b}; _F[0] = {t} {sym} _F[0]; {t} = _F[0]"
+
+
 _HELPER_BINARY = {
     Op.DIV: "_div",
     Op.MOD: "_mod",
