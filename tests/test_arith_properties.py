@@ -40,6 +40,12 @@ function tle(t) { return (t.a <= t.b) }
 function tlt0(t) { return (t.a < 0) }
 function tgtbig(t) { return (t.a > 16777217) }
 function tltf(t) { return (t.a < 0.5) }
+function tdiv(t) { return t.a / t.b }
+function tdiv16(t) { return t.a / 16 }
+function tband(t) { return t.a & t.b }
+function tbor(t) { return t.a | t.b }
+function tshl(t) { return t.a << t.b }
+function tshr(t) { return t.a >> t.b }
 function ftadd(t) { var x = 0.75
   return x + t.b }
 function tfsub(t) { var x = 0.75
@@ -111,6 +117,34 @@ def test_int32_division_truncates_and_modulo_follows_the_reference(
     vm = VMS[translate]
     assert vm.call("div", a, b) == wrap(c_div(a, b))
     assert vm.call("mod", a, b) == c_mod(a, b)
+
+
+@PATHS
+@settings(max_examples=300, deadline=None)
+@given(
+    a=st.one_of(INT32, st.floats(allow_nan=False, allow_infinity=False, width=32)),
+    b=st.one_of(INT32.filter(lambda b: b != 0), st.integers(-64, 64).filter(lambda b: b != 0)),
+)
+def test_untyped_int_division_and_bitwise_follow_the_reference(
+    translate: bool, a: int | float, b: int
+) -> None:
+    """Ints read from a table (no known type): translated code uses Python's operators
+    where they are Buzz's rule (a positive divisor, int operands) and the full rule
+    otherwise: both must agree with the reference, and a float still fails bitwise."""
+    vm = VMS[translate]
+    t = bvm.Table(a=a, b=b)
+    if isinstance(a, float):
+        assert same_float(vm.call("tdiv", t), np32("div", a, f32(float(b)))), (a, b)
+        with pytest.raises(bvm.BuzzError, match="expected integer"):
+            vm.call("tbor", t)
+        vm.reset_error()
+        return
+    assert vm.call("tdiv", t) == wrap(c_div(a, b)), (a, b)
+    assert vm.call("tdiv16", t) == c_div(a, 16), a
+    assert vm.call("tband", t) == a & b
+    assert vm.call("tbor", t) == a | b
+    assert vm.call("tshl", t) == wrap(a << (b & 31)), (a, b)
+    assert vm.call("tshr", t) == a >> (b & 31), (a, b)
 
 
 @PATHS

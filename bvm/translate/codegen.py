@@ -743,6 +743,19 @@ class Codegen:
             self.emit(f"{t} = ({av} % {bv}) if {cond} else _mod({av}, {bv})", at)
             self.push(t, INT if ta == INT and tb == INT else ANY)
             return
+        if op in _INT_INLINE and ta in (INT, ANY) and tb in (INT, ANY) and ANY in (ta, tb):
+            # Ints known only at run time (fields of received messages, `flags | bit`):
+            # Python's operator where it is Buzz's rule, the full rule for anything else.
+            test = self.int_test(a, b)
+            if op is Op.DIV:
+                cond = f"{test} and {bv} > 0"
+                expr = f"(({av} // {bv}) if {av} >= 0 else -(-{av} // {bv}))"
+            else:
+                cond = test
+                expr = _INT_INLINE[op].format(a=av, b=bv)
+            self.emit(f"{t} = {expr} if {cond} else {_HELPER_BINARY[op]}({av}, {bv})", at)
+            self.push(t, ANY if op is Op.DIV else INT)
+            return
         if ta == FLOAT and tb == FLOAT and op is Op.DIV and b.const not in (None, 0.0):
             self.emit(f"_F[0] = {av} / {bv}", at)
             self.emit(f"{t} = _F[0]", at)
@@ -1035,6 +1048,15 @@ def _round_both(t: str, a: str, sym: str, b: str) -> str:
     return f"_F[0] = {a}; {t} = _F[0]; _F[0] = {b}; _F[0] = {t} {sym} _F[0]; {t} = _F[0]"
 
 
+#: Python's expression for two int32 values where it is Buzz's rule (division only by a
+#: positive divisor: C truncation is then floor division of the magnitude).
+_INT_INLINE = {
+    Op.DIV: "",
+    Op.BAND: "({a} & {b})",
+    Op.BOR: "({a} | {b})",
+    Op.RSHIFT: "({a} >> ({b} & 31))",
+    Op.LSHIFT: "_i32({a} << ({b} & 31))",
+}
 _HELPER_BINARY = {
     Op.DIV: "_div",
     Op.MOD: "_mod",
