@@ -738,8 +738,11 @@ class Codegen:
         if op is Op.MOD and ta in (INT, ANY) and tb in (INT, ANY):
             # The same for ints known only at run time (`COUNTER % PERIOD`, every step of
             # most scripts); anything else takes the full rule.
+            # (A divisor beyond int32, which only a host could store, takes the rule,
+            # which wraps.)
             test = self.int_test(a, b)
-            cond = f"{bv} > 0" if test == "True" else f"{test} and {bv} > 0"
+            cond = f"0 < {bv} < 2147483648"
+            cond = cond if test == "True" else f"{test} and {cond}"
             self.emit(f"{t} = ({av} % {bv}) if {cond} else _mod({av}, {bv})", at)
             self.push(t, INT if ta == INT and tb == INT else ANY)
             return
@@ -748,7 +751,9 @@ class Codegen:
             # Python's operator where it is Buzz's rule, the full rule for anything else.
             test = self.int_test(a, b)
             if op is Op.DIV:
-                cond = f"{test} and {bv} > 0"
+                # A dividend beyond int32 (only a host could store one) takes the rule,
+                # which wraps the quotient.
+                cond = f"{test} and {bv} > 0 and -2147483649 < {av} < 2147483648"
                 expr = f"(({av} // {bv}) if {av} >= 0 else -(-{av} // {bv}))"
             else:
                 cond = test
