@@ -754,11 +754,11 @@ class Codegen:
                 # A dividend beyond int32 (only a host could store one) takes the rule,
                 # which wraps the quotient.
                 cond = f"{test} and {bv} > 0 and -2147483649 < {av} < 2147483648"
-                expr = f"(({av} // {bv}) if {av} >= 0 else -(-{av} // {bv}))"
+                fast = f"(({av} // {bv}) if {av} >= 0 else -(-{av} // {bv}))"
             else:
                 cond = test
-                expr = _INT_INLINE[op].format(a=av, b=bv)
-            self.emit(f"{t} = {expr} if {cond} else {_HELPER_BINARY[op]}({av}, {bv})", at)
+                fast = _INT_INLINE[op].format(a=av, b=bv)
+            self.emit(f"{t} = {fast} if {cond} else {_HELPER_BINARY[op]}({av}, {bv})", at)
             self.push(t, ANY if op is Op.DIV else INT)
             return
         if ta == FLOAT and tb == FLOAT and op is Op.DIV and b.const not in (None, 0.0):
