@@ -5,7 +5,10 @@ and stepping it (simulator.collector_paused, tuned_memory)."""
 
 from __future__ import annotations
 
+import ctypes
 import gc
+import mmap
+import weakref
 from pathlib import Path
 
 import pytest
@@ -15,6 +18,7 @@ from fieldkit.sim.hugepages import HUGE_PAGE, HugePages, eligible
 from fieldkit.sim.simulator import SimConfig, Simulation, tuned_memory
 
 MIB = 1 << 20
+SCRIPT = Path(__file__).resolve().parent.parent / "buzz_scripts" / "coverage.bzz"
 
 MAPS = """\
 55d0c0a00000-55d0c0a2a000 r--p 00000000 00:21 123  /usr/bin/python3.11
@@ -70,9 +74,73 @@ def test_the_heap_is_backed_by_huge_pages_once() -> None:
     del block
 
 
+def _mapping_rss_kib(address: int) -> int:
+    """The resident KiB of the mapping that holds `address` (from /proc/self/smaps)."""
+    inside = False
+    for line in Path("/proc/self/smaps").read_text().splitlines():
+        head = line.split()[0]
+        if "-" in head and all(c in "0123456789abcdef-" for c in head):
+            lo, hi = (int(x, 16) for x in head.split("-"))
+            inside = lo <= address < hi
+        elif inside and line.startswith("Rss:"):
+            return int(line.split()[1])
+    raise AssertionError("no such mapping")
+
+
+@pytest.mark.skipif(not hugepages.supported(), reason="no transparent huge pages here")
+def test_a_sparse_buffer_is_left_small() -> None:
+    # Collapsing fills every hole of a huge page: a buffer touched once every 2 MiB must
+    # not be asked for, or its 64 MiB would all come into memory.
+    size = 64 * MIB
+    sparse = mmap.mmap(-1, size, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
+    dense = mmap.mmap(-1, size, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
+    for at in range(0, size, HUGE_PAGE):
+        sparse[at] = 1
+    for at in range(0, size, 4096):
+        dense[at] = 1
+    where = ctypes.addressof(ctypes.c_char.from_buffer(sparse))
+    before = _mapping_rss_kib(where)
+    pages = HugePages()
+    pages.back()
+    assert _mapping_rss_kib(where) - before < 1024  # still about one page per 2 MiB
+    dense_at = ctypes.addressof(ctypes.c_char.from_buffer(dense))
+    if pages.collapsed:
+        assert any(dense_at <= p < dense_at + size for p in pages._done)
+    assert not any(where <= p < where + size for p in pages._done)
+    sparse.close()
+    dense.close()
+
+
+def test_following_the_heap_costs_nothing_until_it_grew(monkeypatch: pytest.MonkeyPatch) -> None:
+    pages = HugePages()
+    looked: list[int] = []
+    monkeypatch.setattr(pages, "back", lambda: looked.append(1) or 0)
+    pages.follow()
+    assert looked == [1]  # a new heap may have grown
+    pages.grown = False  # what back() leaves
+    pages.follow()
+    pages.follow()
+    assert looked == [1]  # a part of a distributed swarm enters tuned_memory every tick
+    monkeypatch.setattr("fieldkit.sim.simulator.HEAP", pages)
+    Simulation(SimConfig(script=SCRIPT, robots=2, seconds=1e6, seed=3))
+    assert pages.grown  # a build grows it
+
+
+def test_swarms_dropped_are_freed_when_the_next_is_built() -> None:
+    # Built swarms go to the oldest generation uncounted, so nothing would make the full
+    # collection that frees the dropped ones: the next build makes it.
+    refs = []
+    for _ in range(4):
+        sim = Simulation(SimConfig(script=SCRIPT, robots=6, seconds=0.3, seed=3))
+        sim.run()
+        refs.append(weakref.ref(sim))
+        del sim
+    Simulation(SimConfig(script=SCRIPT, robots=2, seconds=1e6, seed=3))
+    assert [r() is None for r in refs] == [True] * 4
+
+
 def _run(robots: int, ticks: int) -> list[tuple[object, ...]]:
-    script = Path(__file__).resolve().parent.parent / "buzz_scripts" / "coverage.bzz"
-    sim = Simulation(SimConfig(script=script, robots=robots, seconds=1e6, seed=3))
+    sim = Simulation(SimConfig(script=SCRIPT, robots=robots, seconds=1e6, seed=3))
     with tuned_memory():
         for _ in range(ticks):
             sim.step()
@@ -110,9 +178,8 @@ def test_tuned_memory_follows_the_heap_after_young_collections(
 
 
 def test_a_built_swarm_goes_to_the_oldest_generation_unscanned() -> None:
-    script = Path(__file__).resolve().parent.parent / "buzz_scripts" / "coverage.bzz"
     assert gc.isenabled()
-    sim = Simulation(SimConfig(script=script, robots=8, seconds=1e6, seed=3))
+    sim = Simulation(SimConfig(script=SCRIPT, robots=8, seconds=1e6, seed=3))
     # Built with the collector paused, then not scanned young (it would be in a younger
     # generation: the young collections run every few hundred allocations), nor left frozen.
     assert any(o is sim.robots for o in gc.get_objects(generation=2))

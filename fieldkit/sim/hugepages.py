@@ -11,7 +11,8 @@ Linux maps anonymous memory with 2 MiB pages where asked (`madvise(MADV_HUGEPAGE
 system's default mode here is "madvise") and, since 6.1, turns the pages already there into
 huge ones at once (`MADV_COLLAPSE`). Python's allocator asks for neither, so the
 simulator does it for the whole heap when it starts stepping a swarm, and again for what
-the heap grew by (`HugePages.back`, called by `simulator.tuned_memory`). Only the page
+the heap grew by (`HugePages.back`, called by `simulator.tuned_memory`), where its pages
+are all there: a sparse buffer is left alone (a huge page is all in memory). Only the page
 size changes, never a value: runs are the same bit for bit. Where the system has no huge
 pages, or `FIELDKIT_HUGE_PAGES=0` is set, nothing is done. Measured in
 docs/results.md#the-whole-mission-from-the-ground.
@@ -30,6 +31,11 @@ MADV_COLLAPSE = 25
 #: The huge page size on x86-64 and most arm64 kernels.
 HUGE_PAGE = 2 << 20
 
+#: The share of a huge page's small pages that must be in memory before it is asked for.
+DENSE = 0.9
+
+_PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
+_RESIDENT = bytes(b & 1 for b in range(256))  # mincore's byte -> whether the page is there
 _MODE = Path("/sys/kernel/mm/transparent_hugepage/enabled")
 _MAPS = Path("/proc/self/maps")
 
@@ -72,24 +78,35 @@ def supported() -> bool:
 
 
 class HugePages:
-    """The process's heap backed by huge pages, part by part as it grows."""
+    """The process's heap backed by huge pages, part by part as it fills."""
 
     def __init__(self) -> None:
         self.enabled = supported()
         self.backed = 0  # bytes asked for so far
         self.collapsed = 0  # of which made huge at once (the rest as pages are touched)
-        self._done: set[tuple[int, int]] = set()
-        self._madvise = None
+        self.grown = True  # the heap may have grown since `back` last looked
+        self._done: set[int] = set()  # the huge pages (their addresses) asked for
+        self._libc: ctypes.CDLL | None = None
         if self.enabled:
             libc = ctypes.CDLL(None, use_errno=True)
-            self._madvise = libc.madvise
-            self._madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
-            self._madvise.restype = ctypes.c_int
+            libc.madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+            libc.madvise.restype = ctypes.c_int
+            libc.mincore.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_char_p]
+            libc.mincore.restype = ctypes.c_int
+            self._libc = libc
+
+    def follow(self) -> int:
+        """`back`, if the heap may have grown since it last looked (a swarm was built, a
+        young collection ran); else nothing, at no cost (a part of a distributed swarm
+        enters `tuned_memory` every tick)."""
+        return self.back() if self.grown else 0
 
     def back(self) -> int:
-        """Ask for huge pages for every part of the heap not asked for yet; the bytes asked
-        for now (0 where unsupported). Failures are not errors: the pages stay small."""
-        if self._madvise is None:
+        """Ask for huge pages where the heap's pages are all (or nearly all) there and not
+        asked for yet; the bytes asked for now (0 where unsupported). Failures are not
+        errors: the pages stay small."""
+        self.grown = False
+        if self._libc is None:
             return 0
         try:
             maps = _MAPS.read_text()
@@ -97,21 +114,42 @@ class HugePages:
             return 0
         new = 0
         for lo, hi in eligible(maps):
-            if (lo, hi) in self._done:
-                continue
-            self._done.add((lo, hi))
-            if self._madvise(lo, hi - lo, MADV_HUGEPAGE) != 0:
-                continue
-            new += hi - lo
-            # The pages already there stay small unless collapsed (khugepaged would take
-            # minutes); before Linux 6.1 this fails, and only pages made later are huge.
-            if self._madvise(lo, hi - lo, MADV_COLLAPSE) == 0:
-                self.collapsed += hi - lo
+            for run_lo, run_hi in self._dense_runs(lo, hi):
+                if self._libc.madvise(run_lo, run_hi - run_lo, MADV_HUGEPAGE) != 0:
+                    continue
+                self._done.update(range(run_lo, run_hi, HUGE_PAGE))
+                new += run_hi - run_lo
+                # The pages already there stay small unless collapsed (khugepaged would
+                # take minutes); before Linux 6.1 this fails, and only later pages are huge.
+                if self._libc.madvise(run_lo, run_hi - run_lo, MADV_COLLAPSE) == 0:
+                    self.collapsed += run_hi - run_lo
         self.backed += new
         return new
+
+    def _dense_runs(self, lo: int, hi: int) -> list[tuple[int, int]]:
+        """The runs of huge pages in [lo, hi) not asked for yet whose small pages are at
+        least DENSE there. A sparse buffer stays as it is: collapsing fills every hole of
+        a huge page with zeros (a 256 MiB mapping touched every 2 MiB would take 256 MiB),
+        and the heap's arenas are dense anyway."""
+        assert self._libc is not None
+        vec = ctypes.create_string_buffer((hi - lo) // _PAGE)
+        if self._libc.mincore(lo, hi - lo, vec) != 0:
+            return []
+        resident = vec.raw.translate(_RESIDENT)  # 1 per page in memory, else 0
+        per = HUGE_PAGE // _PAGE
+        runs: list[tuple[int, int]] = []
+        for k in range(0, len(resident), per):
+            at = lo + k * _PAGE
+            if at in self._done or resident.count(1, k, k + per) < DENSE * per:
+                continue
+            if runs and runs[-1][1] == at:
+                runs[-1] = (runs[-1][0], at + HUGE_PAGE)
+            else:
+                runs.append((at, at + HUGE_PAGE))
+        return runs
 
 
 #: The process's one heap.
 HEAP = HugePages()
 
-__all__ = ["HEAP", "HUGE_PAGE", "HugePages", "eligible", "supported"]
+__all__ = ["DENSE", "HEAP", "HUGE_PAGE", "HugePages", "eligible", "supported"]
