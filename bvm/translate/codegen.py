@@ -640,6 +640,10 @@ class Codegen:
             # (Not for `*`: "ab" * 2**31 would allocate before any check.)
             self.emit(f"try: {t} = {av} {sym} {bv}", at)
             self.emit(f"except _TypeError: {t} = {slow}({av}, {bv})", at)
+            redo = (
+                f"{t}.__class__ is not _int or {t} > 1073741823 or {t} < -1073741823: "
+                f"{t} = _redo({slow}, {av}, {bv}, {t})"
+            )
             if ta == ANY and tb == ANY:
                 # Two floats (vector maths on table fields): the full rule written out.
                 self.emit(
@@ -647,17 +651,9 @@ class Codegen:
                     f"{bv}.__class__ is _float: {_round_both(t, av, sym, bv)}",
                     at,
                 )
-                self.emit(
-                    f"elif {t}.__class__ is not _int or {t} > 1073741823 or {t} < -1073741823: "
-                    f"{t} = _redo({slow}, {av}, {bv}, {t})",
-                    at,
-                )
+                self.emit(f"elif {redo}", at)
             else:
-                self.emit(
-                    f"if {t}.__class__ is not _int or {t} > 1073741823 or {t} < -1073741823: "
-                    f"{t} = _redo({slow}, {av}, {bv}, {t})",
-                    at,
-                )
+                self.emit(f"if {redo}", at)
             self.push(t, ANY)
         elif ta in (INT, ANY) and tb in (INT, ANY):
             self.emit(f"if {self.int_test(a, b)}:", at)
@@ -732,7 +728,7 @@ class Codegen:
             if op is Op.MOD:
                 self.emit(f"{t} = {av} % {bv}", at)
             else:
-                self.emit(f"{t} = {av} // {bv} if {av} >= 0 else -(-{av} // {bv})", at)
+                self.emit(f"{t} = {_INT_INLINE[op].format(a=av, b=bv)}", at)
             self.push(t, INT)
             return
         if op is Op.MOD and ta in (INT, ANY) and tb in (INT, ANY):
@@ -750,14 +746,12 @@ class Codegen:
             # Ints known only at run time (fields of received messages, `flags | bit`):
             # Python's operator where it is Buzz's rule, the full rule for anything else.
             test = self.int_test(a, b)
+            cond = test
             if op is Op.DIV:
                 # A dividend beyond int32 (only a host could store one) takes the rule,
                 # which wraps the quotient.
                 cond = f"{test} and {bv} > 0 and -2147483649 < {av} < 2147483648"
-                fast = f"(({av} // {bv}) if {av} >= 0 else -(-{av} // {bv}))"
-            else:
-                cond = test
-                fast = _INT_INLINE[op].format(a=av, b=bv)
+            fast = _INT_INLINE[op].format(a=av, b=bv)
             self.emit(f"{t} = {fast} if {cond} else {_HELPER_BINARY[op]}({av}, {bv})", at)
             self.push(t, ANY if op is Op.DIV else INT)
             return
@@ -767,8 +761,7 @@ class Codegen:
             self.push(t, FLOAT)
             return
         if ta == INT and tb == INT and op in (Op.BAND, Op.BOR, Op.RSHIFT):
-            expr = {Op.BAND: f"{av} & {bv}", Op.BOR: f"{av} | {bv}"}.get(op)
-            self.emit(f"{t} = {expr or f'{av} >> ({bv} & 31)'}", at)
+            self.emit(f"{t} = {_INT_INLINE[op].format(a=av, b=bv)}", at)
             self.push(t, INT)
             return
         self.emit(f"{t} = {_HELPER_BINARY[op]}({av}, {bv})", at)
@@ -1056,7 +1049,7 @@ def _round_both(t: str, a: str, sym: str, b: str) -> str:
 #: Python's expression for two int32 values where it is Buzz's rule (division only by a
 #: positive divisor: C truncation is then floor division of the magnitude).
 _INT_INLINE = {
-    Op.DIV: "",
+    Op.DIV: "(({a} // {b}) if {a} >= 0 else -(-{a} // {b}))",
     Op.BAND: "({a} & {b})",
     Op.BOR: "({a} | {b})",
     Op.RSHIFT: "({a} >> ({b} & 31))",
