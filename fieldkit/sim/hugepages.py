@@ -81,13 +81,12 @@ class HugePages:
     """The process's heap backed by huge pages, part by part as it fills."""
 
     def __init__(self) -> None:
-        self.enabled = supported()
         self.backed = 0  # bytes asked for so far
         self.collapsed = 0  # of which made huge at once (the rest as pages are touched)
         self.grown = True  # the heap may have grown since `back` last looked
         self._done: set[int] = set()  # the huge pages (their addresses) asked for
         self._libc: ctypes.CDLL | None = None
-        if self.enabled:
+        if supported():
             libc = ctypes.CDLL(None, use_errno=True)
             libc.madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
             libc.madvise.restype = ctypes.c_int
