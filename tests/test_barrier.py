@@ -292,6 +292,16 @@ function size_now() { return flow_swarm_size() }
 """
 
 
+def _started(program: bvm.Program) -> bvm.VM:
+    """Robot 1 running `program` with the script API, its global code and init() run."""
+    vm = bvm.VM(robot_id=1)
+    vm.load(program)
+    ScriptAPI(vm).install()
+    vm.execute()
+    vm.call("init")
+    return vm
+
+
 @functools.cache
 def _seen_probe() -> bvm.Program:
     return bvm.compile_source(SEEN_PROBE, "seen.bzz", [str(SCRIPTS)])
@@ -309,12 +319,7 @@ def test_the_kept_swarm_size_is_the_count_of_robots_heard_lately(
 ) -> None:
     # flow_swarm_size keeps its count until SEEN changes or an entry ages out: at every
     # tick it must equal the count made afresh.
-    program = _seen_probe()
-    vm = bvm.VM(robot_id=1)
-    vm.load(program)
-    ScriptAPI(vm).install()
-    vm.execute()
-    vm.call("init")
+    vm = _started(_seen_probe())
     seen: dict[int, int] = {}
     tick = 0
     for gap, ids, robots in events:
@@ -382,11 +387,7 @@ def test_the_kept_barrier_count_is_the_count_made_afresh(
     # barrier_recount sums the children's reports again only when the children, the
     # root or our own part changed: after any sequence of messages it must give what a
     # fresh sum gives.
-    vm = bvm.VM(robot_id=1)
-    vm.load(_recount_probe())
-    ScriptAPI(vm).install()
-    vm.execute()
-    vm.call("init")
+    vm = _started(_recount_probe())
     for event in events:
         if isinstance(event, str):
             vm.call(event)
