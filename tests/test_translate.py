@@ -452,6 +452,16 @@ def test_chunked_loops_count_the_same_budget() -> None:
                         assert ref.budget.used == outcomes[0][2]
 
 
+def test_every_vm_counts_chunks_with_the_same_tuples() -> None:
+    # A chunk's counts are 1,500 ints: made per VM they were a fifth of a translated
+    # robot's memory, and cold in the cache each time a swarm's robot ran a loop.
+    a, b = bvm.VM(), bvm.VM()
+    for name in ("_KS1", "_KS2"):
+        assert a.globals[name] is b.globals[name]
+    assert a.globals["_KS1"] == tuple(range(1000, 0, -1))
+    assert a.globals["_KS2"] == tuple(range(1000, 0, -2))
+
+
 def test_error_location_survives_an_equal_translation_being_collected() -> None:
     # Two VMs running one script make equal code objects (code compares by value); the
     # line map of the live one must not go with the other.
