@@ -4,8 +4,6 @@ beside a SITL swarm): the command-line side both share."""
 
 from __future__ import annotations
 
-import signal
-import threading
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -14,6 +12,7 @@ import typer
 
 from fieldkit.cli.errors import fail
 from fieldkit.cli.output import out_dir
+from fieldkit.cli.signals import stop_on_signals
 
 if TYPE_CHECKING:
     from fieldkit.ground.live import LiveGround
@@ -92,13 +91,12 @@ def run_with_ground(
     until = "until Ctrl-C" if seconds is None else f"for {seconds:g} s"
     announce(live, keys)
     typer.echo(f"ground: simulating {sim.config.robots} robots in real time {until}", err=True)
-    stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        with tuned_memory():
+        with stop_on_signals() as stop, tuned_memory():
             run_live(sim, seconds, stop=stop, after_step=after_step)
-    except KeyboardInterrupt:
+        if stop.is_set():
+            typer.echo("ground: stopped", err=True)
+    except KeyboardInterrupt:  # a second Ctrl-C
         typer.echo("ground: stopped", err=True)
     finally:
-        signal.signal(signal.SIGTERM, previous)
         live.close()

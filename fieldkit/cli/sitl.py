@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import signal
 import threading
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -29,6 +27,7 @@ from fieldkit.cli.options import (
     warn_if_insecure,
 )
 from fieldkit.cli.output import count_states, out_dir, progress_bar, wrote
+from fieldkit.cli.signals import stop_on_signals
 from fieldkit.cli.updates import release_for, split_versions, update_outcome
 
 if TYPE_CHECKING:
@@ -78,24 +77,6 @@ def _team_profiles(team: list[tuple[str, int]], text: str) -> list[Profile]:
                 raise fail(f"--team {text!r}: {e}") from None
         out += [loaded[name]] * n
     return out
-
-
-@contextmanager
-def _stop_on_signals() -> Iterator[threading.Event]:
-    """An event Ctrl-C (SIGINT) and SIGTERM set: the run ends normally, results written.
-    A second Ctrl-C interrupts at once."""
-    stop = threading.Event()
-
-    def first(signum: int, _frame: object) -> None:
-        stop.set()
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-
-    old = {sig: signal.signal(sig, first) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield stop
-    finally:
-        for sig, previous in old.items():
-            signal.signal(sig, previous)
 
 
 def sitl_cmd(
@@ -271,7 +252,7 @@ def sitl_cmd(
     )
     live = cfg.ground = _open_ground(cfg, keys, ground_port, sets) if ground else None
     try:
-        with _stop_on_signals() as stop:
+        with stop_on_signals() as stop:
             if seconds is None:
                 typer.echo(f"sitl: {n} robots until Ctrl-C", err=True)
                 summary = _run(cfg, stop, None)
