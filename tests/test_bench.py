@@ -72,6 +72,16 @@ def test_digest_bench_runs(capsys: object) -> None:
     assert out.count("of the 100 ms tick") == 2
 
 
+def test_memory_bench_times_the_same_code_at_each_size(capsys: object) -> None:
+    bench = load("sim_memory")
+    bench.main(["--robots", "20", "--at", "3"])
+    out = capsys.readouterr().out  # type: ignore[attr-defined]
+    rows = [line.split() for line in out.splitlines() if line.split()[0].isdigit()]
+    assert [int(r[0]) for r in rows] == [10, 20]
+    assert all(float(v) > 0 for r in rows for v in r[1:])
+    assert "all robots / 10 robots: sensor tables" in out
+
+
 def test_ground_bench_hears_every_robot() -> None:
     bench = load("ground_throughput")
     r = bench.measure(20, 2.0, 1, True)
