@@ -84,19 +84,24 @@ def run_with_ground(
     from fieldkit.ground.live import attach, run_live
     from fieldkit.sim.simulator import tuned_memory
 
-    try:
-        live = attach(sim, keys, http_port=http_port, **drawing(globals_, sim.config.script.name))
-    except OSError as e:
-        raise port_taken(http_port, e) from None
-    until = "until Ctrl-C" if seconds is None else f"for {seconds:g} s"
-    announce(live, keys)
-    typer.echo(f"ground: simulating {sim.config.robots} robots in real time {until}", err=True)
-    try:
-        with stop_on_signals() as stop, tuned_memory():
-            run_live(sim, seconds, stop=stop, after_step=after_step)
-        if stop.is_set():
+    # The handlers go in before the banner: a Ctrl-C once the operator has seen it is a
+    # normal end, never an interrupted command.
+    with stop_on_signals() as stop:
+        try:
+            live = attach(
+                sim, keys, http_port=http_port, **drawing(globals_, sim.config.script.name)
+            )
+        except OSError as e:
+            raise port_taken(http_port, e) from None
+        until = "until Ctrl-C" if seconds is None else f"for {seconds:g} s"
+        announce(live, keys)
+        typer.echo(f"ground: simulating {sim.config.robots} robots in real time {until}", err=True)
+        try:
+            with tuned_memory():
+                run_live(sim, seconds, stop=stop, after_step=after_step)
+            if stop.is_set():
+                typer.echo("ground: stopped", err=True)
+        except KeyboardInterrupt:  # a second Ctrl-C
             typer.echo("ground: stopped", err=True)
-    except KeyboardInterrupt:  # a second Ctrl-C
-        typer.echo("ground: stopped", err=True)
-    finally:
-        live.close()
+        finally:
+            live.close()
