@@ -99,9 +99,9 @@ def run_with_ground(
         try:
             with tuned_memory():
                 run_live(sim, seconds, stop=stop, after_step=after_step)
-            if stop.is_set():
-                typer.echo("ground: stopped", err=True)
-        except KeyboardInterrupt:  # a second Ctrl-C
-            typer.echo("ground: stopped", err=True)
+        except KeyboardInterrupt:  # a second Ctrl-C: a normal end all the same
+            stop.set()
         finally:
             live.close()
+    if stop.is_set():
+        typer.echo("ground: stopped", err=True)
