@@ -12,13 +12,21 @@ or set HYPOTHESIS_EXPLORE=1 to draw fresh ones in the suite.
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import typer.testing
 from hypothesis import settings
 from rigs import RIG_HOME, SimRig
+
+# CliRunner.invoke converts the Typer app into its click commands on every call: ~0.2 s of
+# annotation evaluation for fieldkit's ~110 commands and options, more than most invocations
+# take, for the same tree each time (a command run from the shell builds it once too).
+# Click runs each invocation in a fresh context, so one tree per app serves every test.
+typer.testing._get_command = functools.cache(typer.testing._get_command)  # type: ignore[attr-defined]
 
 # No deadline: hypothesis's default (200 ms an example) fails tests at random on a loaded
 # machine, and no test may depend on wall-clock speed.
