@@ -89,3 +89,35 @@ def test_ctrl_c_ends_a_sim_run_with_its_ground_station_and_writes_the_results(
     assert summary["robots"] == 3
     assert summary["seconds_simulated"] < 600  # ended by Ctrl-C, not by its time
     assert f"results in {out}" in stdout
+
+
+@pytest.mark.parametrize("workers", [None, 2])
+def test_ctrl_c_ends_a_sim_run_early_writes_what_it_ran_and_fails(
+    tmp_path: Path, workers: int | None
+) -> None:
+    out = tmp_path / "run"
+    split = [] if workers is None else ["--workers", str(workers)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fieldkit", "sim", "run",
+         str(ROOT / "buzz_scripts" / "examples" / "hello.bzz"), "--robots", "4",
+         "--out", str(out), "--seconds", "100000", *split],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True,  # its own process group, as a terminal's job is
+    )  # fmt: skip
+    assert proc.stderr is not None
+    lines = []
+    for line in proc.stderr:  # the 0% line: the handlers are in, stepping begins
+        lines.append(line)
+        if "robots" in line and "0% (0/" in line:
+            break
+    assert proc.poll() is None, "".join(lines)
+    os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C does: every process of the job
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 1, "".join(lines) + stderr
+    assert "Traceback" not in stderr, stderr
+    summary = json.loads((out / "summary.json").read_text())
+    done = summary["seconds_simulated"]
+    assert 0 <= done < 100000  # ended by Ctrl-C, not by its time
+    assert f"error: interrupted at {done:g} s of 100000 s" in stderr
+    assert (out / "log.txt").exists() and (out / "trajectories.csv").exists()
+    assert f"results in {out}" in stdout

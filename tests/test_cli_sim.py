@@ -56,9 +56,10 @@ def test_sim_run_says_where_and_how_it_went_off_a_terminal(tmp_path: Path) -> No
     assert last.startswith("sim run: 3 robots; 2 s simulated; final states STEPPING 3; ")
     assert "0 script errors" in last and "bundles max" in last
     assert last.endswith(f"results in {out}")
-    # Not a terminal: plain progress lines, ten of them, instead of a bar.
+    # Not a terminal: plain progress lines, the start and ten more, instead of a bar.
     progress = [ln for ln in stderr.splitlines() if ln.startswith("simulating 3 robots: ")]
-    assert progress[-1] == "simulating 3 robots: 100% (20/20)" and len(progress) == 10
+    assert progress[0] == "simulating 3 robots: 0% (0/20)"
+    assert progress[-1] == "simulating 3 robots: 100% (20/20)" and len(progress) == 11
 
 
 def test_the_log_is_in_time_order_with_time_and_robot_on_every_line(tmp_path: Path) -> None:
@@ -193,8 +194,8 @@ def test_progress_off_a_terminal_is_a_line_every_tenth(
             advance(done, 200)
         advance(200, 200)
     lines = capsys.readouterr().err.splitlines()
-    assert lines[0] == "work: 10% (21/200)" and lines[-1] == "work: 100% (200/200)"
-    assert len(lines) == 10
+    assert lines[:2] == ["work: 0% (0/200)", "work: 10% (21/200)"]
+    assert lines[-1] == "work: 100% (200/200)" and len(lines) == 11
 
 
 def test_default_home_is_documented() -> None:

@@ -48,8 +48,11 @@ PROGRESS_EVERY_S = 60.0
 @contextmanager
 def progress_bar(label: str, total: int) -> Iterator[Callable[[int, int], None]]:
     """A context giving `advance(done, total)`: a bar on stderr when it is a terminal, else a
-    plain `LABEL: 40% (40/100)` line on stderr every 10% of the work (and every minute)."""
+    plain `LABEL: 40% (40/100)` line on stderr at the start, every 10% of the work and
+    every minute."""
     if not sys.stderr.isatty():
+        # The 0% line: the work has begun (a log shows what it is and how long it is).
+        typer.echo(f"{label}: 0% (0/{total})", err=True)
         yield _progress_lines(label)
         return
     from rich.progress import Progress

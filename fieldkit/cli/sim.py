@@ -28,6 +28,7 @@ from fieldkit.cli.options import (
     warn_if_insecure,
 )
 from fieldkit.cli.output import count_states, out_dir, progress_bar, write_json, wrote
+from fieldkit.cli.signals import stop_on_signals
 from fieldkit.cli.updates import release_for, update_outcome
 
 if TYPE_CHECKING:
@@ -228,6 +229,7 @@ def run_cmd(
     from fieldkit.sim.tracks import SimRecorder
 
     recorder = SimRecorder(sim)
+    stopped = False
     try:
         if ground:
             from fieldkit.cli.ground_sim import run_with_ground
@@ -235,13 +237,20 @@ def run_cmd(
             run_with_ground(sim, keys, seconds, ground_port, globals_, recorder.after_step)
         else:
             assert seconds is not None
-            with progress_bar(f"simulating {robots} robots", round(seconds * 10)) as advance:
-                sim.run(progress=advance, after_step=recorder.after_step)
+            with (
+                stop_on_signals() as stop,
+                progress_bar(f"simulating {robots} robots", round(seconds * 10)) as advance,
+            ):
+                sim.run(progress=advance, after_step=recorder.after_step, stop=stop)
+                stopped = stop.is_set()
     finally:
         sim.close_recording()
     for bag in bags:
         wrote(bag)
-    _write_run(sim.summary(), sim.log, recorder, config, out, script, globals_, (lat, lon))
+    summary = sim.summary()
+    _write_run(summary, sim.log, recorder, config, out, script, globals_, (lat, lon))
+    if stopped:
+        raise _stopped(summary, config.seconds)
 
 
 def _check_split(workers: int | None, scheduler: str | None, others: dict[str, object]) -> None:
@@ -280,14 +289,25 @@ def _run_split(
         recorder = SimRecorder(sim)
         parts = len(sim.parts)
         label = f"simulating {config.robots} robots on {parts} worker{'s' if parts > 1 else ''}"
-        with progress_bar(label, round(config.seconds * 10)) as advance:
-            sim.run(progress=advance, after_step=recorder.after_step)
+        with stop_on_signals() as stop, progress_bar(label, round(config.seconds * 10)) as advance:
+            sim.run(progress=advance, after_step=recorder.after_step, stop=stop)
+        stopped = stop.is_set()
         summary = sim.summary()
     except DistributedError as e:
         raise fail(e) from None
     finally:
         sim.close()
     _write_run(summary, sim.log, recorder, config, out, script, globals_, home)
+    if stopped:
+        raise _stopped(summary, config.seconds)
+
+
+def _stopped(summary: Mapping[str, object], seconds: float) -> typer.Exit:
+    """The error of a run of fixed length that Ctrl-C or SIGTERM ended early: its results
+    are written, and the command fails, saying how far it got (a script must not take it for
+    a whole run)."""
+    done = cast(float, summary["seconds_simulated"])
+    return fail(f"interrupted at {done:g} s of {seconds:g} s: the run so far is written above")
 
 
 def _write_run(

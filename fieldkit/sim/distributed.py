@@ -36,6 +36,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import multiprocessing
+import signal
+import threading
 import time
 import traceback
 from collections.abc import Callable, Sequence
@@ -238,6 +240,9 @@ class _Worker(Protocol):
 
 def _serve(conn: Connection) -> None:
     """A local worker process: build the part, then answer calls until told to stop."""
+    # A Ctrl-C at the terminal reaches the whole process group: the coordinator decides
+    # what it means (the run ends between two ticks), the worker keeps answering.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     part: SwarmPart | None = None
     while True:
         try:
@@ -581,9 +586,11 @@ class DistributedSimulation(BundleTally):
         self,
         progress: Callable[[int, int], None] | None = None,
         after_step: Callable[[], None] | None = None,
+        stop: threading.Event | None = None,
     ) -> None:
-        """Run the configured number of simulated seconds, as `Simulation.run`."""
-        run_ticks(self, round(self.config.seconds / TICK_S), progress, after_step)
+        """Run the configured number of simulated seconds, or until `stop`, as
+        `Simulation.run`."""
+        run_ticks(self, round(self.config.seconds / TICK_S), progress, after_step, stop)
 
     def summary(self) -> dict[str, object]:
         """The run's figures, as `Simulation.summary` gives them for the same run."""

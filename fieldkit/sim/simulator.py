@@ -24,6 +24,7 @@ import gc
 import logging
 import math
 import random
+import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -168,11 +169,13 @@ def run_ticks(
     total: int,
     progress: Callable[[int, int], None] | None = None,
     after_step: Callable[[], None] | None = None,
+    stop: threading.Event | None = None,
 ) -> None:
-    """Step `sim` until its tick reaches `total`, with the tuned collector; `after_step()`
-    and `progress(ticks_done, total)` after every tick."""
+    """Step `sim` until its tick reaches `total` or `stop` is set (checked between ticks),
+    with the tuned collector; `after_step()` and `progress(ticks_done, total)` after every
+    tick."""
     with tuned_memory():
-        while sim.tick < total:
+        while sim.tick < total and (stop is None or not stop.is_set()):
             sim.step()
             if after_step is not None:
                 after_step()
@@ -831,10 +834,12 @@ class Simulation(BundleTally):
         self,
         progress: Callable[[int, int], None] | None = None,
         after_step: Callable[[], None] | None = None,
+        stop: threading.Event | None = None,
     ) -> None:
-        """Run the configured number of simulated seconds; `after_step()` (a recorder) and
-        `progress(ticks_done, ticks_total)` are called after every tick."""
-        run_ticks(self, round(self.config.seconds / TICK_S), progress, after_step)
+        """Run the configured number of simulated seconds, or until `stop` is set;
+        `after_step()` (a recorder) and `progress(ticks_done, ticks_total)` are called after
+        every tick."""
+        run_ticks(self, round(self.config.seconds / TICK_S), progress, after_step, stop)
 
     def kill(self, rid: int) -> SimRobot:
         """Take robot `rid` out of the swarm between two ticks, as a hardware loss or a flat
