@@ -25,7 +25,6 @@ from __future__ import annotations
 import logging
 import math
 import os
-import signal
 import sys
 import threading
 from pathlib import Path
@@ -35,6 +34,7 @@ import typer
 
 from fieldkit.cli.errors import fail
 from fieldkit.cli.options import parse_home
+from fieldkit.cli.signals import stop_on_signals
 from fieldkit.robot.profiles import ProfileError, load_profile
 
 if TYPE_CHECKING:
@@ -320,19 +320,14 @@ def _serve(sim: _Machine, rate: float) -> None:
     logger.addHandler(handler)
     old_level = logger.level
     logger.setLevel(logging.INFO)
-    stop = threading.Event()
-    # Ctrl-C and SIGTERM end the run alike. SIGINT gets a handler of its own: a process
+    # Ctrl-C and SIGTERM end the run alike, through handlers of their own: a process
     # started in the background of a script inherits SIGINT ignored, and Python then
     # raises no KeyboardInterrupt (a stress run of the suite hung on exactly that).
-    old = {
-        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
-    }
-    try:
-        sim.run(rate, stop)
-    finally:
-        for sig, previous in old.items():
-            signal.signal(sig, previous)
-        logger.removeHandler(handler)
-        logger.setLevel(old_level)
-        sim.close()
+    with stop_on_signals() as stop:
+        try:
+            sim.run(rate, stop)
+        finally:
+            logger.removeHandler(handler)
+            logger.setLevel(old_level)
+            sim.close()
     typer.echo("vehicle-sim: stopped", err=True)
