@@ -310,6 +310,42 @@ def test_task_allocation_end_to_end(drop: float, seed: int) -> None:
 ARRIVE_TOL = 0.6  # the script's ARRIVED (0.5 m) plus the hold tolerance slack
 
 
+def test_two_robots_taking_label_0_at_once_leave_it_to_the_lower_id() -> None:
+    # 8 robots for the 6 tasks of P: once formed, the root dies; once its last message has
+    # aged out, the two robots without a task are made to have lost it long ago (as the
+    # robot of label 1 will have), so both take label 0 on the same step.
+    rc = sim_mod.RcCommand
+
+    def locked(sim) -> bool:
+        return sum(r.state == "LOCK" for r in sim.robots.values()) == 6
+
+    sim = simulate(
+        "task_allocation.bzz", 8, 0.0, 1, [rc(0.5, 1, 22), rc(6.0, 1, 900)], 90.0, locked
+    )
+    assert locked(sim)
+    free = sorted(r.id for r in sim.robots.values() if r.vm["TA_LABEL"] == -1)
+    assert len(free) == 2
+    sim.kill(1)
+    for _ in range(60):  # HEARD_TTL (50 steps) and a little
+        sim.step()
+    for rid in free:
+        vm = sim.robots[rid].vm
+        vm["TA_ROOT_LOST"] = 0  # the tick it last saw label 0's robot
+        vm["TA_ROOT_CHILD"] = 1
+    holders: list[list[int]] = []
+    for _ in range(round(60 / sim_mod.TICK_S)):
+        sim.step()
+        robots = sim.robots.values()
+        holders.append([r.id for r in robots if r.vm["TA_LABEL"] == 0 and r.state in HELD])
+    assert free in holders  # both took it at once...
+    assert holders[-1] == [min(free)]  # ...and the higher id gave it up for good
+    assert any(f"label 0 belongs to {min(free)}: free again" in line for line in sim.log)
+    assert locked(sim)  # and the shape formed again around it
+
+
+HELD = ("JOINED", "LOCK")
+
+
 def test_task_allocation_from_the_ground_with_one_command() -> None:
     # RC 900 on the ground: barrier, takeoff, then allocation (no separate RC 22).
     rc = sim_mod.RcCommand

@@ -32,25 +32,23 @@ if TYPE_CHECKING:
 KILL_S = 60.0
 #: The share of the swarm that dies.
 KILL_FRACTION = 0.2
-#: The graph every run forms, and the robot that roots it (task_allocation.bzz's ROOT_ID,
-#: never killed: the script has no hand-over of label 0, see docs/results.md).
+#: The graph every run forms. Any robot may die, label 0's included (task_allocation.bzz
+#: hands label 0 over).
 LOSS_SHAPE = "P"
-ROOT_ID = 1
 #: Robots of the default grid: 10 robots for the 6 tasks of P, so the 2 that die can always
 #: be replaced by robots without a task.
 LOSS_ROBOTS = 10
 
 
 def killed_ids(robots: int, seed: int) -> list[int]:
-    """The robots a run kills: round(20 %) of ids 2..robots, drawn from the run's seed."""
+    """The robots a run kills: round(20 %) of ids 1..robots, drawn from the run's seed."""
     count = round(KILL_FRACTION * robots)
-    candidates = [rid for rid in range(1, robots + 1) if rid != ROOT_ID]
-    return sorted(random.Random(f"kill:{seed}").sample(candidates, count))
+    return sorted(random.Random(f"kill:{seed}").sample(range(1, robots + 1), count))
 
 
 @dataclass(frozen=True)
 class TaskAllocationLoss(Experiment):
-    """Task allocation of LOSS_SHAPE; at KILL_S 20 % of the robots (never the root) die."""
+    """Task allocation of LOSS_SHAPE; at KILL_S 20 % of the robots die."""
 
     columns: ClassVar[tuple[str, ...]] = ("alive", "tasks_held", "tasks_held_fraction")
     per_run: ClassVar[tuple[str, ...]] = (
@@ -76,7 +74,7 @@ class TaskAllocationLoss(Experiment):
         return LOSS_SHAPE
 
     def check_robots(self, robots: int) -> None:
-        """At least one robot must die and the root must not be the only one left."""
+        """At least one robot must die."""
         if round(KILL_FRACTION * robots) < 1:
             raise ExperimentError(
                 f"--robots {robots}: {self.name} kills {KILL_FRACTION:.0%} of the robots,"
@@ -103,7 +101,6 @@ class TaskAllocationLoss(Experiment):
             "joined_states": sorted(JOINED_STATES),
             "kill_fraction": KILL_FRACTION,
             "kill_s": KILL_S,
-            "never_killed": ROOT_ID,
         }
 
 
