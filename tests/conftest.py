@@ -35,6 +35,17 @@ settings.register_profile("explore", derandomize=False, deadline=None)
 settings.load_profile("explore" if os.environ.get("HYPOTHESIS_EXPLORE") else "deterministic")
 
 
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """`-n auto`: half again as many workers as this process may use cores.
+
+    A third of the suite's time is simulated flights in real time (SITL, nodes against
+    simulated autopilots on ptys), which wait on the clock half the time: a worker beyond
+    the cores runs other tests meanwhile (on 2 cores: 547 s instead of 625 s, measured).
+    """
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, (cores or 1) * 3 // 2)
+
+
 @pytest.fixture(autouse=True)
 def _isolated_cwd(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)
