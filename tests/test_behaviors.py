@@ -346,6 +346,24 @@ def test_two_robots_taking_label_0_at_once_leave_it_to_the_lower_id() -> None:
 HELD = ("JOINED", "LOCK")
 
 
+@pytest.mark.parametrize(("drop", "seed"), [(0.0, 0), (0.5, 1)])
+def test_the_root_lost_before_the_lock_still_locks_the_shape(drop: float, seed: int) -> None:
+    # 10 robots for P: the root dies 6 s after RC 900, while the shape forms. Another robot
+    # takes label 0, the shape forms again around it, and the lock barrier, rooted at the
+    # dead robot until then, passes with the new root.
+    rc = sim_mod.RcCommand
+    sim = simulate("task_allocation.bzz", 10, drop, seed, [rc(1.0, 1, 22), rc(20.0, 1, 900)], 26)
+    assert sim.robots[1].vm["TA_LABEL"] == 0
+    sim.kill(1)
+    total = sim.tick + round(120 / sim_mod.TICK_S)
+    while sim.tick < total and sum(r.state == "LOCK" for r in sim.robots.values()) < 6:
+        sim.step()
+    locked = [r for r in sim.robots.values() if r.state == "LOCK"]
+    assert sorted(r.vm["TA_LABEL"] for r in locked) == list(range(6))
+    (root,) = [r.id for r in locked if r.vm["TA_LABEL"] == 0]
+    assert all(r.vm["TA_LOCK_ROOT"] == root for r in locked)
+
+
 def test_task_allocation_from_the_ground_with_one_command() -> None:
     # RC 900 on the ground: barrier, takeoff, then allocation (no separate RC 22).
     rc = sim_mod.RcCommand
