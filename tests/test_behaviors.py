@@ -346,6 +346,29 @@ def test_two_robots_taking_label_0_at_once_leave_it_to_the_lower_id() -> None:
 HELD = ("JOINED", "LOCK")
 
 
+def test_a_second_label_0_gives_way_to_root_id_whatever_the_ids() -> None:
+    # ROOT_ID 8 holds label 0; a robot with a lower id comes to hold it too (as one that lost
+    # sight of the root and took it over would, coming back into range): it must give it up,
+    # not the living root, or the whole shape would form again around it.
+    rc = sim_mod.RcCommand
+
+    def locked(sim) -> bool:
+        return sum(r.state == "LOCK" for r in sim.robots.values()) == 6
+
+    commands = [rc(0.5, 1, 22), rc(6.0, 1, 900)]
+    sim = simulate("task_allocation.bzz", 8, 0.0, 1, commands, 90.0, locked, ROOT_ID=8)
+    assert locked(sim) and sim.robots[8].vm["TA_LABEL"] == 0
+    (rival, *_) = sorted(r.id for r in sim.robots.values() if r.vm["TA_LABEL"] == -1)
+    vm = sim.robots[rival].vm
+    vm["TA_LABEL"] = 0
+    vm["BVMSTATE"] = "JOINED"
+    for _ in range(20):
+        sim.step()
+    assert sim.robots[8].vm["TA_LABEL"] == 0 and sim.robots[8].state == "LOCK"
+    assert sim.robots[rival].vm["TA_LABEL"] == -1
+    assert any(f"robot {rival}: label 0 belongs to 8: free again" in ln for ln in sim.log)
+
+
 @pytest.mark.parametrize(("drop", "seed"), [(0.0, 0), (0.5, 1)])
 def test_the_root_lost_before_the_lock_still_locks_the_shape(drop: float, seed: int) -> None:
     # 10 robots for P: the root dies 6 s after RC 900, while the shape forms. Another robot
