@@ -249,7 +249,7 @@ def run_cmd(
         wrote(bag)
     summary = sim.summary()
     _write_run(summary, sim.log, recorder, config, out, script, globals_, (lat, lon))
-    if stopped:
+    if stopped and sim.tick < config.ticks:
         raise _stopped(summary, config.seconds)
 
 
@@ -298,14 +298,14 @@ def _run_split(
     finally:
         sim.close()
     _write_run(summary, sim.log, recorder, config, out, script, globals_, home)
-    if stopped:
+    if stopped and sim.tick < config.ticks:
         raise _stopped(summary, config.seconds)
 
 
 def _stopped(summary: Mapping[str, object], seconds: float) -> typer.Exit:
-    """The error of a run of fixed length that Ctrl-C or SIGTERM ended early: its results
-    are written, and the command fails, saying how far it got (a script must not take it for
-    a whole run)."""
+    """The error of a run of fixed length that Ctrl-C or SIGTERM ended early (a signal after
+    its last tick ends nothing): its results are written, and the command fails, saying how
+    far it got (a script must not take it for a whole run)."""
     done = cast(float, summary["seconds_simulated"])
     return fail(f"interrupted at {done:g} s of {seconds:g} s: the run so far is written above")
 

@@ -590,7 +590,7 @@ class DistributedSimulation(BundleTally):
     ) -> None:
         """Run the configured number of simulated seconds, or until `stop`, as
         `Simulation.run`."""
-        run_ticks(self, round(self.config.seconds / TICK_S), progress, after_step, stop)
+        run_ticks(self, self.config.ticks, progress, after_step, stop)
 
     def summary(self) -> dict[str, object]:
         """The run's figures, as `Simulation.summary` gives them for the same run."""

@@ -286,6 +286,11 @@ class SimConfig:
                     f"start state: robot {rid} flies at altitude {pose.alt} m, not above ground"
                 )
 
+    @property
+    def ticks(self) -> int:
+        """The run's length in ticks."""
+        return round(self.seconds / TICK_S)
+
     def ids(self) -> list[int]:
         """The robots' ids, in the order they step: the start state's, else first_id.."""
         if self.start is not None:
@@ -839,7 +844,7 @@ class Simulation(BundleTally):
         """Run the configured number of simulated seconds, or until `stop` is set;
         `after_step()` (a recorder) and `progress(ticks_done, ticks_total)` are called after
         every tick."""
-        run_ticks(self, round(self.config.seconds / TICK_S), progress, after_step, stop)
+        run_ticks(self, self.config.ticks, progress, after_step, stop)
 
     def kill(self, rid: int) -> SimRobot:
         """Take robot `rid` out of the swarm between two ticks, as a hardware loss or a flat
