@@ -229,27 +229,24 @@ def run_cmd(
     from fieldkit.sim.tracks import SimRecorder
 
     recorder = SimRecorder(sim)
-    stopped = False
     try:
         if ground:
             from fieldkit.cli.ground_sim import run_with_ground
 
             run_with_ground(sim, keys, seconds, ground_port, globals_, recorder.after_step)
         else:
-            assert seconds is not None
             with (
                 stop_on_signals() as stop,
-                progress_bar(f"simulating {robots} robots", round(seconds * 10)) as advance,
+                progress_bar(f"simulating {robots} robots", config.ticks) as advance,
             ):
                 sim.run(progress=advance, after_step=recorder.after_step, stop=stop)
-                stopped = stop.is_set()
     finally:
         sim.close_recording()
     for bag in bags:
         wrote(bag)
     summary = sim.summary()
     _write_run(summary, sim.log, recorder, config, out, script, globals_, (lat, lon))
-    if stopped and sim.tick < config.ticks:
+    if not ground and sim.tick < config.ticks:  # only a stop ends a run before its time
         raise _stopped(summary, config.seconds)
 
 
@@ -289,16 +286,15 @@ def _run_split(
         recorder = SimRecorder(sim)
         parts = len(sim.parts)
         label = f"simulating {config.robots} robots on {parts} worker{'s' if parts > 1 else ''}"
-        with stop_on_signals() as stop, progress_bar(label, round(config.seconds * 10)) as advance:
+        with stop_on_signals() as stop, progress_bar(label, config.ticks) as advance:
             sim.run(progress=advance, after_step=recorder.after_step, stop=stop)
-        stopped = stop.is_set()
         summary = sim.summary()
     except DistributedError as e:
         raise fail(e) from None
     finally:
         sim.close()
     _write_run(summary, sim.log, recorder, config, out, script, globals_, home)
-    if stopped and sim.tick < config.ticks:
+    if sim.tick < config.ticks:  # only a stop ends a run before its time
         raise _stopped(summary, config.seconds)
 
 
