@@ -39,7 +39,10 @@ process, building the simulation and translating every robot's script included: 
 the same as a multiple of real time, the CPU seconds of each phase (start-up: building the
 simulation; takeoff: while any robot is still TURNEDOFF or TAKEOFF; barrier: then while any
 is in BARRIERWAIT or IDLE, the takeoff's and the command's barriers; behaviour: every robot
-in the behaviour's states), the simulated seconds, and the outcome. Its last line is
+in the behaviour's states), the simulated seconds, the CPU microseconds per robot-tick of
+each phase after start-up (real time allows 0.1 s / N: 100 µs at 1,000 robots;
+bench/sim_floor.py measures how much of it a robot costs before its script does
+anything), and the outcome. Its last line is
 
     whole mission: N robots at >= real time (R ticks/s at M robots)
 
@@ -158,11 +161,14 @@ def _labels_held(sim: Simulation) -> int:
     return len(labels)
 
 
-def mission_rate(mission: str, robots: int) -> tuple[float, dict[str, float], float, str]:
-    """CPU-time ticks per second of the whole `mission` at `robots`; the CPU seconds of each
-    phase; the simulated seconds; the outcome."""
+def mission_rate(
+    mission: str, robots: int
+) -> tuple[float, dict[str, float], dict[str, int], float, str]:
+    """CPU-time ticks per second of the whole `mission` at `robots`; the CPU seconds and the
+    ticks of each phase; the simulated seconds; the outcome."""
     cap = round((MISSION_COMMAND_S + MISSION_CAP_S) / TICK_S)
     cpu = dict.fromkeys(PHASES, 0.0)
+    ticks = dict.fromkeys(PHASES, 0)
     gc.collect()  # what the last size left is not this one's start-up
     t0 = time.process_time()
     sim = Simulation(mission_scenario(mission, robots, 1e6))
@@ -176,13 +182,14 @@ def mission_rate(mission: str, robots: int) -> tuple[float, dict[str, float], fl
             t1 = time.process_time()
             sim.step()
             cpu[phase] += time.process_time() - t1
+            ticks[phase] += 1
             end, outcome = _mission_end(mission, sim, phase, tasks, end, outcome)
             if end is not None and sim.tick >= end:
                 if mission == "coverage":
                     outcome = "covered"
                 break
     total = time.process_time() - t0
-    return sim.tick / total, cpu, sim.tick * TICK_S, outcome
+    return sim.tick / total, cpu, ticks, sim.tick * TICK_S, outcome
 
 
 def _mission_end(
@@ -261,16 +268,20 @@ def main_mission(mission: str, sizes: list[int], at: int | None) -> None:
     print(
         f"{'robots':>7s} {'ticks/s':>8s} {'x real time':>12s} "
         + " ".join(f"{p:>10s}" for p in PHASES)
-        + f" {'sim s':>6s}  outcome"
+        + f" {'sim s':>6s}  "
+        + " ".join(f"{p[:6]:>6s}" for p in PHASES[1:])
+        + " (µs per robot-tick)  outcome"
     )
     for n in sizes:
         gc.collect()  # the previous size's swarm is gone before this one is timed
-        tps, cpu, simulated, outcome = mission_rate(mission, n)
+        tps, cpu, ticks, simulated, outcome = mission_rate(mission, n)
         results.append((n, tps))
+        # Each stepping phase's CPU per robot-tick: real time allows 0.1 s / n of it.
+        per = " ".join(f"{cpu[p] / max(1, ticks[p] * n) * 1e6:6.0f}" for p in PHASES[1:])
         print(
             f"{n:7d} {tps:8.2f} {tps * TICK_S:12.2f} "
             + " ".join(f"{cpu[p]:9.1f}s" for p in PHASES)
-            + f" {simulated:6.1f}  {outcome}",
+            + f" {simulated:6.1f}  {per}  {outcome}",
             flush=True,
         )
     m, r = next((n, t) for n, t in results if n == (sizes[-1] if at is None else at))

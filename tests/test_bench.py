@@ -87,3 +87,12 @@ def test_ground_bench_hears_every_robot() -> None:
     r = bench.measure(20, 2.0, 1, True)
     assert r["robots_in_view"] == 20 and r["frames"] > 400
     assert r["counters"].get("suspect", 0) == 0 and r["ratio"] > 0
+
+
+def test_floor_bench_prints_each_size_and_the_share_of_the_budget(capsys: object) -> None:
+    bench = load("sim_floor")
+    bench.main(["--sizes", "2,3", "--robot-ticks", "12"])
+    out = capsys.readouterr().out  # type: ignore[attr-defined]
+    rows = [line.split() for line in out.splitlines() if line.split()[0].isdigit()]
+    assert [int(r[0]) for r in rows] == [2, 3]
+    assert out.splitlines()[-1].startswith("floor: ") and "at 3 robots" in out
