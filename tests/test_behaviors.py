@@ -387,6 +387,46 @@ def test_the_root_lost_before_the_lock_still_locks_the_shape(drop: float, seed: 
     assert all(r.vm["TA_LOCK_ROOT"] == root for r in locked)
 
 
+def _six_locked(sim) -> list[tuple[int, int]]:
+    """(label, robot) of the robots in LOCK, by label."""
+    return sorted((r.vm["TA_LABEL"], r.id) for r in sim.robots.values() if r.state == "LOCK")
+
+
+def test_a_dead_root_id_does_not_stall_a_new_allocation() -> None:
+    # ROOT_ID (robot 1) dies in flight; 45 s later (once the swarm counts 9: SEEN_TTL) the
+    # operator sends RC 900 through robot 3. Only ROOT_ID took label 0 at the start, so
+    # nobody ever did: the command's robot now takes it when no label 0 shows up.
+    rc = sim_mod.RcCommand
+    sim = simulate("task_allocation.bzz", 10, 0.0, 0, [rc(1.0, 3, 22), rc(60.0, 3, 900)], 15)
+    sim.kill(1)
+    total = sim.tick + round(90 / sim_mod.TICK_S)
+    while sim.tick < total and len(_six_locked(sim)) < 6:
+        sim.step()
+    assert [label for label, _ in _six_locked(sim)] == list(range(6))
+    assert (0, 3) in _six_locked(sim)
+    assert any("robot 3: label 0's robot lost: label 0 of P taken here" in ln for ln in sim.log)
+
+
+@pytest.mark.parametrize(("drop", "seed"), [(0.0, 0), (0.5, 1)])
+def test_a_root_that_dies_before_granting_a_label_is_replaced(drop: float, seed: int) -> None:
+    # The root dies 0.2 s after it takes label 0 (its first grant comes 0.4-0.6 s after):
+    # no robot has a label yet, so none loses a predecessor. The FREE robots that saw
+    # label 0 held count it as lost.
+    rc = sim_mod.RcCommand
+    sim = simulate("task_allocation.bzz", 10, drop, seed, [rc(1.0, 1, 22), rc(20.0, 1, 900)], 20)
+    while sim.robots[1].vm["TA_LABEL"] != 0 and sim.tick < round(60 / sim_mod.TICK_S):
+        sim.step()
+    for _ in range(2):
+        sim.step()
+    assert sim.robots[1].vm["TA_LABEL"] == 0
+    assert all(r.vm["TA_LABEL"] == -1 for r in sim.robots.values() if r.id != 1)
+    sim.kill(1)
+    total = sim.tick + round(120 / sim_mod.TICK_S)
+    while sim.tick < total and len(_six_locked(sim)) < 6:
+        sim.step()
+    assert [label for label, _ in _six_locked(sim)] == list(range(6))
+
+
 def test_task_allocation_from_the_ground_with_one_command() -> None:
     # RC 900 on the ground: barrier, takeoff, then allocation (no separate RC 22).
     rc = sim_mod.RcCommand
