@@ -19,8 +19,11 @@ Its last line is
 
     floor: F µs per robot-tick at N robots, P% of the real-time budget (B µs)
 
-N the largest size measured. A floor that stays flat from 10 to 1,000 robots is work done
-per robot (instructions), not the cost of a large swarm's memory.
+N the largest size measured. The floor is not one cost at every size: a few robots share
+the work done once per tick for the whole swarm (the radio's positions, the neighbour
+geometry's numpy calls), and in a large swarm each robot's objects have left the CPU caches
+by its next turn (bench/sim_memory.py; docs/results.md measured the same few robots stepped
+over and over at about half the floor of 1,000).
 """
 
 from __future__ import annotations
