@@ -392,19 +392,24 @@ def _six_locked(sim) -> list[tuple[int, int]]:
     return sorted((r.vm["TA_LABEL"], r.id) for r in sim.robots.values() if r.state == "LOCK")
 
 
-def test_a_dead_root_id_does_not_stall_a_new_allocation() -> None:
-    # ROOT_ID (robot 1) dies in flight; 45 s later (once the swarm counts 9: SEEN_TTL) the
-    # operator sends RC 900 through robot 3. Only ROOT_ID took label 0 at the start, so
-    # nobody ever did: the command's robot now takes it when no label 0 shows up.
+def test_a_command_barrier_that_times_out_leaves_the_labels_as_they_were() -> None:
+    # The shape is locked; a robot dies; RC 904 (IDLE) through robot 2 waits in its barrier
+    # for the dead robot and times out after 30 s, back to each robot's state. Nobody spoke
+    # meanwhile, so every robot's wait for its predecessor (and a FREE robot's for label 0)
+    # had run out: label holders gave their labels up and took label 0 over. They resume
+    # their waits from the time-out instead.
     rc = sim_mod.RcCommand
-    sim = simulate("task_allocation.bzz", 10, 0.0, 0, [rc(1.0, 3, 22), rc(60.0, 3, 900)], 15)
-    sim.kill(1)
-    total = sim.tick + round(90 / sim_mod.TICK_S)
-    while sim.tick < total and len(_six_locked(sim)) < 6:
+    commands = [rc(1.0, 1, 22), rc(15.0, 1, 900), rc(60.0, 2, 904)]
+    sim = simulate("task_allocation.bzz", 10, 0.0, 1, commands, 59.9, BARRIER_TIMEOUT=300)
+    before = _six_locked(sim)
+    assert [label for label, _ in before] == list(range(6))
+    (spare,) = [r.id for r in sim.robots.values() if r.state == "FREE"][-1:]
+    sim.kill(spare)
+    while sim.tick < round(140 / sim_mod.TICK_S):
         sim.step()
-    assert [label for label, _ in _six_locked(sim)] == list(range(6))
-    assert (0, 3) in _six_locked(sim)
-    assert any("robot 3: label 0's robot lost: label 0 of P taken here" in ln for ln in sim.log)
+    assert any("barrier 904 timed out" in line for line in sim.log)
+    assert not any("taken here" in line or "free again" in line for line in sim.log)
+    assert _six_locked(sim) == before
 
 
 @pytest.mark.parametrize(("drop", "seed"), [(0.0, 0), (0.5, 1)])
