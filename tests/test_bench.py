@@ -20,6 +20,11 @@ def load(name: str) -> ModuleType:
     return bench
 
 
+def table_rows(out: str) -> list[list[str]]:
+    """The rows of a bench's table: the lines that start with a robot count."""
+    return [line.split() for line in out.splitlines() if line.split()[0].isdigit()]
+
+
 def test_scale_bench_measures_a_deploying_swarm() -> None:
     bench = load("sim_scale")
     rate, whole, gossip_s, states = bench.ticks_per_second(16, 1.0)
@@ -76,7 +81,7 @@ def test_memory_bench_times_the_same_code_at_each_size(capsys: object) -> None:
     bench = load("sim_memory")
     bench.main(["--robots", "20", "--at", "3"])
     out = capsys.readouterr().out  # type: ignore[attr-defined]
-    rows = [line.split() for line in out.splitlines() if line.split()[0].isdigit()]
+    rows = table_rows(out)
     assert [int(r[0]) for r in rows] == [10, 20]
     assert all(float(v) > 0 for r in rows for v in r[1:])
     assert "all robots / 10 robots: sensor tables" in out
@@ -93,6 +98,5 @@ def test_floor_bench_prints_each_size_and_the_share_of_the_budget(capsys: object
     bench = load("sim_floor")
     bench.main(["--sizes", "2,3", "--robot-ticks", "12"])
     out = capsys.readouterr().out  # type: ignore[attr-defined]
-    rows = [line.split() for line in out.splitlines() if line.split()[0].isdigit()]
-    assert [int(r[0]) for r in rows] == [2, 3]
+    assert [int(r[0]) for r in table_rows(out)] == [2, 3]
     assert out.splitlines()[-1].startswith("floor: ") and "at 3 robots" in out
