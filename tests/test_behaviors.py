@@ -432,6 +432,64 @@ def test_a_root_that_dies_before_granting_a_label_is_replaced(drop: float, seed:
     assert [label for label, _ in _six_locked(sim)] == list(range(6))
 
 
+def _root_killed_before_its_first_grant(more: list[tuple[float, int, int]]):
+    """10 robots, BARRIER_TIMEOUT 30 s, RC 900 at 20 s: the root dies 0.2 s after taking
+    label 0 (about 20.9 s), then RC codes `more` (seconds, robot, code) follow; run until
+    the shape locks or 120 s after the kill."""
+    rc = sim_mod.RcCommand
+    commands = [rc(1.0, 1, 22), rc(20.0, 1, 900), *(rc(t, r, c) for t, r, c in more)]
+    sim = simulate("task_allocation.bzz", 10, 0.0, 0, commands, 20, BARRIER_TIMEOUT=300)
+    while sim.robots[1].vm["TA_LABEL"] != 0:
+        sim.step()
+    sim.step()
+    sim.step()
+    assert sim.tick * sim_mod.TICK_S < min(t for t, _, _ in more)
+    sim.kill(1)
+    total = sim.tick + round(120 / sim_mod.TICK_S)
+    while sim.tick < total and len(_six_locked(sim)) < 6:
+        sim.step()
+    return sim
+
+
+def test_a_lost_root_is_replaced_after_a_command_barrier_times_out() -> None:
+    # RC 904 waits for the dead root and times out 30 s later: the robots that saw label 0
+    # before the wait still count it seen, and one takes it 20 s after the time-out.
+    sim = _root_killed_before_its_first_grant([(22.0, 2, 904)])
+    assert any("barrier 904 timed out" in line for line in sim.log)
+    assert [label for label, _ in _six_locked(sim)] == list(range(6))
+
+
+def test_a_command_during_a_barrier_resumes_what_that_barrier_would_have() -> None:
+    # A second RC 904 5 s into the first one's barrier: when it times out, each robot goes
+    # back to its state before the first, not to BARRIERWAIT for good.
+    sim = _root_killed_before_its_first_grant([(22.0, 2, 904), (27.0, 3, 904)])
+    assert not any("-> BARRIERWAIT" in line for line in sim.log)
+    assert [label for label, _ in _six_locked(sim)] == list(range(6))
+
+
+def test_a_takeoff_barrier_that_times_out_enters_the_auto_state() -> None:
+    # A robot dead before takeoff: the takeoff's barrier times out and the others go on
+    # to AUTO_STATE alone. TASK_ALLOCATE must be entered (its graph loaded, a state of
+    # its own), not only named.
+    rc = sim_mod.RcCommand
+    cfg = sim_mod.SimConfig(
+        script=SCRIPTS / "task_allocation.bzz",
+        robots=6,
+        seed=1,
+        seconds=40.0,
+        commands=[rc(1.0, 1, 22)],
+        globals={"AUTO_STATE": "TASK_ALLOCATE", "BARRIER_TIMEOUT": 100},
+    )
+    sim = sim_mod.Simulation(cfg)
+    sim.step()
+    sim.kill(6)
+    while sim.tick < round(40 / sim_mod.TICK_S):
+        sim.step()
+    assert any("barrier 22 timed out" in line for line in sim.log)
+    assert sim.robots[1].vm["TA_LABEL"] == 0
+    assert all(r.state != "TASK_ALLOCATE" for r in sim.robots.values())
+
+
 def test_task_allocation_from_the_ground_with_one_command() -> None:
     # RC 900 on the ground: barrier, takeoff, then allocation (no separate RC 22).
     rc = sim_mod.RcCommand
