@@ -472,16 +472,17 @@ def test_a_takeoff_barrier_that_times_out_enters_the_auto_state() -> None:
     # to AUTO_STATE alone. TASK_ALLOCATE must be entered (its graph loaded, a state of
     # its own), not only named.
     rc = sim_mod.RcCommand
-    cfg = sim_mod.SimConfig(
-        script=SCRIPTS / "task_allocation.bzz",
-        robots=6,
-        seed=1,
-        seconds=40.0,
-        commands=[rc(1.0, 1, 22)],
-        globals={"AUTO_STATE": "TASK_ALLOCATE", "BARRIER_TIMEOUT": 100},
+    commands = [rc(1.0, 1, 22)]
+    sim = simulate(
+        "task_allocation.bzz",
+        6,
+        0.0,
+        1,
+        commands,
+        0.1,
+        AUTO_STATE="TASK_ALLOCATE",
+        BARRIER_TIMEOUT=100,
     )
-    sim = sim_mod.Simulation(cfg)
-    sim.step()
     sim.kill(6)
     while sim.tick < round(40 / sim_mod.TICK_S):
         sim.step()
