@@ -193,6 +193,7 @@ def test_info_survives_nonsense_times_in_metadata(tmp_path: Path) -> None:
     assert f["start"] == "9999999999999999999999 ns since the epoch (not a date)"
 
 
+@pytest.mark.long
 def test_bag_plot_draws_a_node_bag_and_a_tlog_bag(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 

@@ -47,6 +47,7 @@ def assert_agree(source: str, functions: list[tuple[str, int]]) -> oracle.Verdic
     return verdict
 
 
+@pytest.mark.long
 @settings(
     max_examples=EXAMPLES,
     deadline=None,

@@ -46,6 +46,7 @@ def _states(page: object) -> list[str]:
     )
 
 
+@pytest.mark.long
 def test_page_takes_off_and_allocates_tasks(tmp_path: Path) -> None:
     port = _free_port()
     out = tmp_path / "run"

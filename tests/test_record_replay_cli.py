@@ -163,6 +163,7 @@ def test_a_real_tlog_converted_to_a_bag_drives_a_node(tmp_path: Path) -> None:
     assert "; final state WATCHING;" in result.stdout.splitlines()[-1]
 
 
+@pytest.mark.long
 def test_a_signed_sitl_flight_with_an_update_replays_with_the_keys(tmp_path: Path) -> None:
     from fieldkit.update.keys import init_keys
 

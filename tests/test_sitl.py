@@ -33,6 +33,7 @@ function step() {
 """
 
 
+@pytest.mark.long
 def test_three_nodes_exchange_bundles_over_a_lossy_corrupting_relay(tmp_path: Path) -> None:
     script = tmp_path / "gossip.bzz"
     script.write_text(GOSSIP)
@@ -63,6 +64,7 @@ def test_three_nodes_exchange_bundles_over_a_lossy_corrupting_relay(tmp_path: Pa
     assert written["final_states"] == summary["final_states"]
 
 
+@pytest.mark.long
 def test_signed_nodes_gossip_through_the_relay_and_check_every_bundle(tmp_path: Path) -> None:
     from fieldkit.update.keys import init_keys
 
@@ -199,6 +201,7 @@ def committed(out: Path, rid: int) -> tuple[int, Release]:
     return c.version, store.get(c.hash)
 
 
+@pytest.mark.long
 def test_sitl_update_reaches_every_node_and_is_committed(tmp_path: Path) -> None:
     (tmp_path / "v0.bzz").write_text(V0)
     (tmp_path / "v2.bzz").write_text(V2)
@@ -226,6 +229,7 @@ def test_sitl_update_reaches_every_node_and_is_committed(tmp_path: Path) -> None
     assert sum("version two" in ln for ln in (out / "log.txt").read_text().splitlines()) == 3
 
 
+@pytest.mark.long
 def test_sitl_update_that_fails_after_its_switch_rolls_every_node_back(tmp_path: Path) -> None:
     script = tmp_path / "v0.bzz"
     script.write_text(V0)

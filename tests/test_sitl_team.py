@@ -42,6 +42,7 @@ def _tracks(out: Path) -> dict[str, list[dict[str, str]]]:
     return by_robot
 
 
+@pytest.mark.long
 def test_a_mixed_team_takes_off_and_drives_each_robot_by_its_kind(tmp_path: Path) -> None:
     out = tmp_path / "run"
     # RC 900 to robot 1 at 10 s of its loop: the swarm takes off (the Husky arms) and forms
@@ -128,6 +129,7 @@ def _until(proc: subprocess.Popen[str], pattern: str, seen: list[str], deadline:
             return line
 
 
+@pytest.mark.long
 def test_cmd_through_the_sitl_ground_gateway_reaches_every_node(tmp_path: Path) -> None:
     out = tmp_path / "run"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
