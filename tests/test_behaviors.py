@@ -412,38 +412,23 @@ def test_a_command_barrier_that_times_out_leaves_the_labels_as_they_were() -> No
     assert _six_locked(sim) == before
 
 
-@pytest.mark.parametrize(("drop", "seed"), [(0.0, 0), (0.5, 1)])
-def test_a_root_that_dies_before_granting_a_label_is_replaced(drop: float, seed: int) -> None:
-    # The root dies 0.2 s after it takes label 0 (its first grant comes 0.4-0.6 s after):
-    # no robot has a label yet, so none loses a predecessor. The FREE robots that saw
-    # label 0 held count it as lost.
-    rc = sim_mod.RcCommand
-    sim = simulate("task_allocation.bzz", 10, drop, seed, [rc(1.0, 1, 22), rc(20.0, 1, 900)], 20)
-    while sim.robots[1].vm["TA_LABEL"] != 0 and sim.tick < round(60 / sim_mod.TICK_S):
-        sim.step()
-    for _ in range(2):
-        sim.step()
-    assert sim.robots[1].vm["TA_LABEL"] == 0
-    assert all(r.vm["TA_LABEL"] == -1 for r in sim.robots.values() if r.id != 1)
-    sim.kill(1)
-    total = sim.tick + round(120 / sim_mod.TICK_S)
-    while sim.tick < total and len(_six_locked(sim)) < 6:
-        sim.step()
-    assert [label for label, _ in _six_locked(sim)] == list(range(6))
-
-
-def _root_killed_before_its_first_grant(more: list[tuple[float, int, int]]):
+def _root_killed_before_its_first_grant(
+    drop: float = 0.0, seed: int = 0, more: tuple[tuple[float, int, int], ...] = ()
+):
     """10 robots, BARRIER_TIMEOUT 30 s, RC 900 at 20 s: the root dies 0.2 s after taking
-    label 0 (about 20.9 s), then RC codes `more` (seconds, robot, code) follow; run until
-    the shape locks or 120 s after the kill."""
+    label 0 (its first grant comes 0.4-0.6 s after), while no other robot has a label, then
+    RC codes `more` (seconds, robot, code) follow; run until the shape locks or 120 s after
+    the kill."""
     rc = sim_mod.RcCommand
     commands = [rc(1.0, 1, 22), rc(20.0, 1, 900), *(rc(t, r, c) for t, r, c in more)]
-    sim = simulate("task_allocation.bzz", 10, 0.0, 0, commands, 20, BARRIER_TIMEOUT=300)
-    while sim.robots[1].vm["TA_LABEL"] != 0:
+    sim = simulate("task_allocation.bzz", 10, drop, seed, commands, 20, BARRIER_TIMEOUT=300)
+    while sim.robots[1].vm["TA_LABEL"] != 0 and sim.tick < round(60 / sim_mod.TICK_S):
         sim.step()
     sim.step()
     sim.step()
-    assert sim.tick * sim_mod.TICK_S < min(t for t, _, _ in more)
+    assert sim.robots[1].vm["TA_LABEL"] == 0
+    assert all(r.vm["TA_LABEL"] == -1 for r in sim.robots.values() if r.id != 1)
+    assert all(sim.tick * sim_mod.TICK_S < t for t, _, _ in more)
     sim.kill(1)
     total = sim.tick + round(120 / sim_mod.TICK_S)
     while sim.tick < total and len(_six_locked(sim)) < 6:
@@ -451,10 +436,18 @@ def _root_killed_before_its_first_grant(more: list[tuple[float, int, int]]):
     return sim
 
 
+@pytest.mark.parametrize(("drop", "seed"), [(0.0, 0), (0.5, 1)])
+def test_a_root_that_dies_before_granting_a_label_is_replaced(drop: float, seed: int) -> None:
+    # No robot has a label yet, so none loses a predecessor. The FREE robots that saw
+    # label 0 held count it as lost.
+    sim = _root_killed_before_its_first_grant(drop, seed)
+    assert [label for label, _ in _six_locked(sim)] == list(range(6))
+
+
 def test_a_lost_root_is_replaced_after_a_command_barrier_times_out() -> None:
     # RC 904 waits for the dead root and times out 30 s later: the robots that saw label 0
     # before the wait still count it seen, and one takes it 20 s after the time-out.
-    sim = _root_killed_before_its_first_grant([(22.0, 2, 904)])
+    sim = _root_killed_before_its_first_grant(more=((22.0, 2, 904),))
     assert any("barrier 904 timed out" in line for line in sim.log)
     assert [label for label, _ in _six_locked(sim)] == list(range(6))
 
@@ -462,7 +455,7 @@ def test_a_lost_root_is_replaced_after_a_command_barrier_times_out() -> None:
 def test_a_command_during_a_barrier_resumes_what_that_barrier_would_have() -> None:
     # A second RC 904 5 s into the first one's barrier: when it times out, each robot goes
     # back to its state before the first, not to BARRIERWAIT for good.
-    sim = _root_killed_before_its_first_grant([(22.0, 2, 904), (27.0, 3, 904)])
+    sim = _root_killed_before_its_first_grant(more=((22.0, 2, 904), (27.0, 3, 904)))
     assert not any("-> BARRIERWAIT" in line for line in sim.log)
     assert [label for label, _ in _six_locked(sim)] == list(range(6))
 
@@ -489,6 +482,44 @@ def test_a_takeoff_barrier_that_times_out_enters_the_auto_state() -> None:
     assert any("barrier 22 timed out" in line for line in sim.log)
     assert sim.robots[1].vm["TA_LABEL"] == 0
     assert all(r.state != "TASK_ALLOCATE" for r in sim.robots.values())
+
+
+REENTRY_PROBE = """
+include "include/states.bzz"
+COMMAND_STATE[905] = "X"
+ENTERED = 0
+STATE_ENTER["X"] = function() { ENTERED = ENTERED + 1 }
+function init() { flow_init() }
+function step() { flow_step() }
+function destroy() {}
+"""
+
+
+def test_a_command_to_the_state_a_robot_is_in_resumes_it_on_a_time_out(tmp_path: Path) -> None:
+    # RC 905 takes the robots to X; robot 4 dies; RC 905 again waits for it and times out.
+    # The robots go back to X as they left it: its entry (coverage's DEPLOY resets its goal)
+    # runs once, not again as the takeoff's time-out, which goes on to a state not entered.
+    script = tmp_path / "probe.bzz"
+    script.write_text(REENTRY_PROBE)
+    rc = sim_mod.RcCommand
+    cfg = sim_mod.SimConfig(
+        script=script,
+        robots=4,
+        seed=1,
+        seconds=60.0,
+        commands=[rc(1.0, 1, 22), rc(15.0, 1, 905), rc(25.0, 1, 905)],
+        include_dirs=(str(SCRIPTS),),
+        globals={"BARRIER_TIMEOUT": 100},
+    )
+    sim = sim_mod.Simulation(cfg)
+    while sim.tick < round(20 / sim_mod.TICK_S):
+        sim.step()
+    assert all(r.state == "X" for r in sim.robots.values())
+    sim.kill(4)
+    while sim.tick < round(60 / sim_mod.TICK_S):
+        sim.step()
+    assert any("barrier 905 timed out" in line for line in sim.log)
+    assert [(r.state, r.vm["ENTERED"]) for r in sim.robots.values()] == [("X", 1)] * 3
 
 
 def test_task_allocation_from_the_ground_with_one_command() -> None:
