@@ -69,6 +69,11 @@ if TYPE_CHECKING:
     from dask.distributed import Client
 
 
+#: How long closing waits for the local workers to stop on their own, all together, before
+#: killing them (a second Ctrl-C must not wait this long per worker).
+CLOSE_GRACE_S = 5.0
+
+
 class DistributedError(FieldkitError, RuntimeError):
     """A worker could not be started or reached, or failed."""
 
@@ -234,8 +239,11 @@ class _Worker(Protocol):
     def result(self) -> Any:
         """The answer to the last call (DistributedError if the part failed)."""
 
-    def close(self) -> None:
-        """Stop the worker (safe to call twice)."""
+    def stop(self) -> None:
+        """Ask the worker to stop, without waiting (safe to call twice)."""
+
+    def close(self, deadline: float) -> None:
+        """Stop the worker, by `deadline` (time.monotonic) at the latest (safe twice)."""
 
 
 def _serve(conn: Connection) -> None:
@@ -292,16 +300,21 @@ class _ProcessWorker:
             raise DistributedError(f"worker {self.index} failed: {answer}")
         return answer
 
-    def close(self) -> None:
-        if self.process.is_alive():
+    def stop(self) -> None:
+        if self.process.is_alive() and not self.conn.closed:
             try:
                 self.conn.send(("close", ()))
             except (OSError, ValueError):
                 pass
-            self.process.join(5)
-            if self.process.is_alive():
-                self.process.kill()
-                self.process.join()
+
+    def close(self, deadline: float) -> None:
+        # A worker in the middle of a big tick reads "close" only after it: it gets until
+        # the deadline, which every worker shares, then it is killed (it holds no results).
+        self.stop()
+        self.process.join(max(0.0, deadline - time.monotonic()))
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join()
         self.conn.close()
 
 
@@ -333,9 +346,12 @@ class _DaskWorker:
             self.actor, answer = answer, None
         return answer
 
-    def close(self) -> None:
+    def stop(self) -> None:
         self.actor = None
         self._pending = None
+
+    def close(self, deadline: float) -> None:
+        self.stop()
 
 
 # ------------------------------------------------------------------ the coordinator
@@ -484,9 +500,13 @@ class DistributedSimulation(BundleTally):
             raise DistributedError(f"{workers} workers for {robots} robots: at most one each")
 
     def close(self) -> None:
-        """Stop the workers (and leave the cluster); safe to call twice."""
+        """Stop the workers (and leave the cluster); safe to call twice. Every worker is
+        asked first, so they stop together: at most CLOSE_GRACE_S in all, however many."""
+        deadline = time.monotonic() + CLOSE_GRACE_S
         for worker in self._workers:
-            worker.close()
+            worker.stop()
+        for worker in self._workers:
+            worker.close(deadline)
         self._workers = []
         if self._client_cm is not None:
             cm, self._client_cm = self._client_cm, None
