@@ -460,6 +460,39 @@ def test_a_command_during_a_barrier_resumes_what_that_barrier_would_have() -> No
     assert [label for label, _ in _six_locked(sim)] == list(range(6))
 
 
+def _new_allocation_after_root_id_died(params: tuple[float, ...]):
+    """10 robots hover; robot 1 (ROOT_ID) dies at 10 s; RC 900 with `params` comes through
+    robot 2 at 50 s (ROBOTS has dropped to 9 by then); run until six robots lock or 100 s."""
+    rc = sim_mod.RcCommand
+    commands = [rc(1.0, 1, 22), rc(50.0, 2, 900, params)]
+    sim = simulate("task_allocation.bzz", 10, 0.0, 0, commands, 10)
+    sim.kill(1)
+    while sim.tick < round(100 / sim_mod.TICK_S) and len(_six_locked(sim)) < 6:
+        sim.step()
+    return sim
+
+
+def test_a_900_that_names_a_root_forms_the_shape_when_root_id_is_gone() -> None:
+    # Nobody ever saw label 0 held in this allocation, so nobody takes it over: a plain
+    # 900 leaves every robot FREE. `T:2:900:3` names robot 3 the root.
+    plain = _new_allocation_after_root_id_died(())
+    assert plain.tick == round(100 / sim_mod.TICK_S)
+    assert all(r.state == "FREE" for r in plain.robots.values())
+    named = _new_allocation_after_root_id_died((3.0,))
+    assert [label for label, _ in _six_locked(named)] == list(range(6))
+    assert named.robots[3].vm["TA_LABEL"] == 0
+    assert all(r.vm["ROOT_ID"] == 3 for r in named.robots.values())
+    assert any("robot 3: root: label 0" in line for line in named.log)
+
+
+def test_a_900_with_a_root_that_is_not_an_id_is_logged_and_ignored() -> None:
+    rc = sim_mod.RcCommand
+    commands = [rc(1.0, 1, 22), rc(10.0, 2, 900, (2.5,))]
+    sim = simulate("task_allocation.bzz", 6, 0.0, 0, commands, 40, until=formed)
+    assert formed(sim) and sim.robots[1].vm["TA_LABEL"] == 0
+    assert any("robot 4: ignored root 2.500000: not a robot id" in line for line in sim.log)
+
+
 def test_a_takeoff_barrier_that_times_out_enters_the_auto_state() -> None:
     # A robot dead before takeoff: the takeoff's barrier times out and the others go on
     # to AUTO_STATE alone. TASK_ALLOCATE must be entered (its graph loaded, a state of

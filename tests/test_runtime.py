@@ -16,6 +16,7 @@ import pytest
 from rigs import RIG_HOME, SimRig
 
 import bvm
+from fieldkit.errors import ConfigError
 from fieldkit.node.autopilot_port import MavlinkAutopilot
 from fieldkit.node.node import Node
 from fieldkit.robot import (
@@ -174,6 +175,20 @@ def test_a_waypoint_command_carries_its_parameters() -> None:
     assert r.vm["got"] == 7 and r.vm["lat"] == pytest.approx(45.6, abs=1e-5)
     # SITL hands it on to a node in the same T:ROBOT:CODE form, parameters included.
     assert RcCommand.parse(c.text()) == c
+
+
+def test_another_codes_first_param_reaches_the_script_for_one_tick() -> None:
+    r = runtime("function step() { p = flight.rc_param  q = isnil(rc_goto) }")
+    r.tick(sensors(), RcCommand.parse("1:1:900:4"))
+    assert r.vm["p"] == 4 and isinstance(r.vm["p"], int)  # an id stays an integer
+    r.tick(sensors())
+    assert r.vm["p"] is None  # like rc_cmd, visible for the command's tick only
+    r.tick(sensors(), RcCommand.parse("1:1:904:0.1"))
+    assert r.vm["p"] == pytest.approx(0.1) and r.vm["p"] != 0.1  # a Buzz float: binary32
+    r.tick(sensors(), RcCommand.parse("1:1:16:7:45.6:-73.5:12"))
+    assert r.vm["p"] is None  # a waypoint's params are rc_goto's
+    with pytest.raises(ConfigError, match="finite"):
+        RcCommand.parse("1:1:900:nan")
 
 
 def test_the_bundle_budget_is_the_profiles() -> None:

@@ -183,7 +183,8 @@ def cmd_cmd(
         list[str] | None,
         typer.Argument(
             metavar="[PARAM]...",
-            help="Params: a waypoint's ID LAT LON ALT (put -- before them if one is negative).",
+            help="Params: a waypoint's ID LAT LON ALT (put -- before them if one is "
+            "negative); task-allocation's root robot ID.",
         ),
     ] = None,
     to: Annotated[

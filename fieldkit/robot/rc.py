@@ -2,9 +2,11 @@
 
 One `RcCommand` is one code for one robot at a time after start: 22 take off, 21 land,
 20 go home, 900 task allocation, 901 coverage, 16 a waypoint (its four parameters: waypoint
-id, latitude, longitude, altitude). The simulator, the field node and SITL all take them in
-the one `T:ROBOT:CODE[:P1:P2...]` text, so `5:1:22` means the same everywhere (a node takes
-only the commands for its own robot id). The node's old two-field `T:CODE` is refused.
+id, latitude, longitude, altitude). Any other code may carry params too; a script sees the
+first as `flight.rc_param` (for 900, the robot to root the shape at). The simulator, the
+field node and SITL all take them in the one `T:ROBOT:CODE[:P1:P2...]` text, so `5:1:22`
+means the same everywhere (a node takes only the commands for its own robot id). The
+node's old two-field `T:CODE` is refused.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import math
 from dataclasses import dataclass
 from typing import Final
 
+from bvm.values import f32
 from fieldkit.errors import ConfigError
 
 #: The waypoint code: it carries (waypoint id, lat, lon, alt).
@@ -32,7 +35,7 @@ class RcCommand:
     t: float
     robot: int
     code: int
-    params: tuple[float, ...] = ()  # code 16: (waypoint id, lat, lon, alt)
+    params: tuple[float, ...] = ()  # code 16: (waypoint id, lat, lon, alt); 900: (root id,)
 
     @classmethod
     def parse(cls, text: str) -> RcCommand:
@@ -51,6 +54,8 @@ class RcCommand:
             raise ConfigError(f"--command {text!r}: expected {COMMAND_FORM}{gone}") from None
         if t < 0 or not math.isfinite(t):
             raise ConfigError(f"--command {text!r}: time must be >= 0 seconds")
+        if not all(math.isfinite(p) for p in params):
+            raise ConfigError(f"--command {text!r}: every param must be a finite number")
         if code == RC_WAYPOINT and len(params) != 4:
             raise ConfigError(f"--command {text!r}: code 16 needs 4 params ID:LAT:LON:ALT")
         return cls(t, robot, code, params)
@@ -58,6 +63,18 @@ class RcCommand:
     def text(self) -> str:
         """The command as `parse` reads it back (SITL hands it to a node this way)."""
         return ":".join([f"{self.t!r}:{self.robot}:{self.code}", *(repr(p) for p in self.params)])
+
+    @property
+    def param(self) -> int | float | None:
+        """The first param of a code other than 16, as the script's `flight.rc_param` gets
+        it: an integer if it is one (task allocation's 900 takes a root id), else a binary32
+        float; None without params."""
+        if self.code == RC_WAYPOINT or not self.params:
+            return None
+        p = self.params[0]
+        if p.is_integer() and abs(p) < 2**31:
+            return int(p)
+        return f32(p)
 
     @property
     def goto(self) -> RcGoto | None:

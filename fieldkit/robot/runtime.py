@@ -355,10 +355,11 @@ class RobotRuntime:
             rc = self.pending_rc.pop(0)
         if rc is None:
             sensors.rc_cmd = 0
-            sensors.rc_goto = None
+            sensors.rc_goto = sensors.rc_param = None
         else:
             sensors.rc_cmd = rc.code
             sensors.rc_goto = rc.goto
+            sensors.rc_param = rc.param
         # step
         commands: list[Command] = []
         vm = self.vm

@@ -66,6 +66,7 @@ class Sensors:
     armed: bool = False
     rc_cmd: int = 0  # a remote-control code received this tick, else 0
     rc_goto: tuple[int, float, float, float] | None = None  # (id, lat, lon, alt) with code 16
+    rc_param: int | float | None = None  # another code's first param (900: the root's id)
     heartbeat_age_s: float = 0.0  # since the autopilot was last heard (0 in simulation)
     rc_override: bool = False  # the backup pilot has the vehicle
 
@@ -186,6 +187,8 @@ class ScriptAPI:
         g["flight"] = flight = Table()
         flight["status"] = s.status
         flight["rc_cmd"] = s.rc_cmd
+        if s.rc_param is not None:  # a fieldkit addition, absent unless given (compat.md)
+            flight["rc_param"] = s.rc_param
         if s.rc_goto is not None:
             rid, lat, lon, alt = s.rc_goto
             g["rc_goto"] = Table(
