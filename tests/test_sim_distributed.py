@@ -17,10 +17,12 @@ from typer.testing import CliRunner
 
 from fieldkit.cli import app
 from fieldkit.sim import distributed
-from fieldkit.sim.distributed import partition
-from fieldkit.sim.simulator import SimConfig
+from fieldkit.sim.distributed import DistributedSimulation, partition
+from fieldkit.sim.simulator import RcCommand, SimConfig, Simulation
 
 runner = CliRunner()
+
+SCRIPTS = Path(__file__).resolve().parent.parent / "buzz_scripts"
 
 #: The files a run writes that must not depend on how it was split (plot.png is drawn from
 #: trajectories.csv's data; its bytes are matplotlib's business).
@@ -200,3 +202,39 @@ def test_closing_stuck_workers_waits_once_for_all_of_them(
     assert len(grace) == 3
     assert sum(grace) <= 0.5 + 1e-6  # old: 5 s each, 15 s in all
     sim.close()  # twice is harmless
+
+
+def test_robots_killed_mid_run_die_the_same_on_two_workers(tmp_path: Path) -> None:
+    """`kill` between two ticks, as the loss experiment does it: robots of both parts die,
+    and the split run logs, hears and ends exactly as the single process does."""
+    config = SimConfig(
+        script=SCRIPTS / "task_allocation.bzz",
+        robots=12,
+        seconds=20.0,
+        drop=0.3,
+        seed=5,
+        commands=[RcCommand(1.0, 1, 22), RcCommand(6.0, 1, 900)],
+    )
+    ends = []
+    for workers in (None, 2):
+        sim = Simulation(config) if workers is None else DistributedSimulation(config, workers=2)
+        try:
+            while sim.tick < 100:
+                sim.step()
+            if isinstance(sim, DistributedSimulation):
+                assert [1 in part for part in sim.parts] != [12 in part for part in sim.parts]
+            for rid in (1, 12):  # the root, and a robot of the other part
+                assert sim.kill(rid).id == rid
+            with pytest.raises(KeyError):
+                sim.kill(12)
+            while sim.tick < 200:
+                sim.step()
+            ends.append((sim.summary(), list(sim.log)))
+        finally:
+            if isinstance(sim, DistributedSimulation):
+                sim.close()
+    (one, one_log), (split, split_log) = ends
+    assert "[   10.000 s] sim: robot 12 killed" in one_log
+    assert split_log == one_log
+    assert split == one
+    assert sorted(one["final_states"]) == sorted(str(r) for r in range(2, 12))

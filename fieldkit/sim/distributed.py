@@ -58,6 +58,7 @@ from fieldkit.sim.simulator import (
     StartPose,
     log_line,
     run_ticks,
+    sim_line,
     start_grid,
     tuned_memory,
 )
@@ -216,6 +217,12 @@ class SwarmPart:
             extras,
             changed,
         )
+
+    def kill(self, rid: int) -> None:
+        """Take robot `rid` of this part out of the swarm between two ticks (`Simulation.kill`)."""
+        self.sim.kill(rid)
+        self.ids.remove(rid)
+        del self._states[rid]
 
     def finish(self) -> PartEnd:
         """The part's robots now: final states, those in their failsafe, security counters."""
@@ -601,6 +608,25 @@ class DistributedSimulation(BundleTally):
                     radio.broadcast(t, rid, relay)
 
     # ------------------------------------------------------------ running
+
+    def kill(self, rid: int) -> RemoteRobot:
+        """Take robot `rid` out of the swarm between two ticks, as `Simulation.kill` does
+        (the same log line, the same radio: bundles in flight to it are dropped on arrival);
+        its worker drops it too. Returns it (KeyError if there is no such robot alive)."""
+        robot = self.robots[rid]
+        k = self._owner[rid]
+        worker = self._workers[k]
+        worker.call("kill", rid)
+        worker.result()
+        del self.robots[rid]
+        del self._owner[rid]
+        self.ids.remove(rid)
+        self.parts[k].remove(rid)
+        line = sim_line(self.tick * TICK_S, f"robot {rid} killed")
+        self.log.append(line)
+        if self.on_log is not None:
+            self.on_log(line)
+        return robot
 
     def run(
         self,

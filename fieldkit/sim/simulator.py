@@ -98,6 +98,11 @@ def log_line(t: float, robot: int, text: str) -> str:
     return f"[{t:9.3f} s] robot {robot}: {text}"
 
 
+def sim_line(t: float, text: str) -> str:
+    """A line of the simulator's own (not a robot's) at simulated time t, as `log_line`."""
+    return f"[{t:9.3f} s] sim: {text}"
+
+
 @contextlib.contextmanager
 def tuned_memory() -> Iterator[None]:
     """Garbage collection and page size tuned for stepping a swarm (what `Simulation.run`
@@ -778,7 +783,7 @@ class Simulation(BundleTally):
 
     def _log_line(self, t: int, text: str) -> None:
         """A line of the simulator's own (not a robot's) in the run's log."""
-        line = f"[{t * TICK_S:9.3f} s] sim: {text}"
+        line = sim_line(t * TICK_S, text)
         self.log.append(line)
         if self.on_log is not None:
             self.on_log(line)
@@ -952,6 +957,7 @@ __all__ = [
     "default_spacing",
     "in_range",
     "log_line",
+    "sim_line",
     "start_grid",
     "tuned_memory",
     "run_ticks",
