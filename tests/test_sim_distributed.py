@@ -196,8 +196,13 @@ def test_closing_stuck_workers_waits_once_for_all_of_them(
 
         monkeypatch.setattr(process, "join", timed_join)
         os.kill(process.pid, signal.SIGSTOP)  # deaf to "close", as in a long tick
-    sim.close()
-    assert not any(p.is_alive() for p in processes)
+    try:
+        sim.close()
+        assert not any(p.is_alive() for p in processes)
+    finally:  # a close that did not kill must fail the test, not hang the session
+        for p in processes:
+            if p.is_alive() and p.pid is not None:
+                os.kill(p.pid, signal.SIGKILL)
     grace = [w for w in waits if w is not None]  # the joins after a kill wait for no one
     assert len(grace) == 3
     assert sum(grace) <= 0.5 + 1e-6  # old: 5 s each, 15 s in all

@@ -508,7 +508,8 @@ class DistributedSimulation(BundleTally):
 
     def close(self) -> None:
         """Stop the workers (and leave the cluster); safe to call twice. Every worker is
-        asked first, so they stop together: at most CLOSE_GRACE_S in all, however many."""
+        asked first, so local ones stop together: at most CLOSE_GRACE_S in all, however
+        many (leaving a Dask cluster takes the client's own time-out besides)."""
         deadline = time.monotonic() + CLOSE_GRACE_S
         for worker in self._workers:
             worker.stop()
