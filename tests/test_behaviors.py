@@ -493,6 +493,63 @@ def test_a_900_with_a_root_that_is_not_an_id_is_logged_and_ignored() -> None:
     assert any("robot 4: ignored root 2.500000: not a robot id" in line for line in sim.log)
 
 
+#: task_allocation.bzz, but robot 6 (captured, or buggy) broadcasts a "cmd" for the next 900
+#: at tick 150 whose `.p` is the value PARAM names.
+HOSTILE_900 = """
+include "task_allocation.bzz"
+ODD = function() { return 1 }
+STATE_STEP["IDLE"] = function() {
+  if (id == 6 and TICK == 150) {
+    var p = nil
+    if (PARAM == "closure") { p = ODD }
+    if (PARAM == "native") { p = log }
+    if (PARAM == "string") { p = "3" }
+    if (PARAM == "huge") { p = 2147483647 }
+    neighbors.broadcast("cmd", {.v = (CMD_EPOCH + 1) * CMD_RADIX + 900, .o = 6, .p = p})
+  }
+}
+"""
+
+
+@pytest.mark.parametrize("param", ["closure", "native", "string", "huge"])
+def test_a_900_whose_root_is_not_a_number_crashes_no_robot(tmp_path: Path, param: str) -> None:
+    # `and` evaluates both sides in Buzz: ordering a closure against 0 was a script error in
+    # the first robot to enter the allocation. Only numbers are taken from a neighbour now.
+    script = tmp_path / "hostile.bzz"
+    script.write_text(HOSTILE_900)
+    cfg = sim_mod.SimConfig(
+        script=script,
+        robots=6,
+        seed=1,
+        seconds=40.0,
+        include_dirs=[str(SCRIPTS)],
+        commands=[sim_mod.RcCommand(1.0, 1, 22)],
+        globals={"PARAM": param},
+    )
+    sim = sim_mod.Simulation(cfg)
+    sim.run()
+    assert [r.error for r in sim.robots.values() if r.error] == []
+    assert all(r.vm["ROOT_ID"] == 1 for r in sim.robots.values())
+    assert sim.robots[1].vm["TA_LABEL"] == 0
+    ignored = [line for line in sim.log if "ignored root 2147483647" in line]
+    assert len(ignored) == (6 if param == "huge" else 0)
+
+
+def test_a_plain_900_goes_back_to_the_configured_root() -> None:
+    # Each 900 says who the root is, so a robot restarted since `T:2:900:3` (its ROOT_ID the
+    # configured 1 again) agrees with the others on the next, plain, 900.
+    rc = sim_mod.RcCommand
+    commands = [rc(1.0, 1, 22), rc(10.0, 2, 900, (3.0,)), rc(40.0, 2, 900)]
+    sim = simulate("task_allocation.bzz", 8, 0.0, 0, commands, 39)
+    assert all(r.vm["ROOT_ID"] == 3 for r in sim.robots.values())
+    sim.robots[5].vm["ROOT_ID"] = 1  # as robot 5's script would be after a restart
+    while sim.tick < round(70 / sim_mod.TICK_S):
+        sim.step()
+    assert all(r.vm["ROOT_ID"] == 1 for r in sim.robots.values())
+    assert [label for label, _ in _six_locked(sim)] == list(range(6))
+    assert sim.robots[1].vm["TA_LABEL"] == 0
+
+
 def test_a_takeoff_barrier_that_times_out_enters_the_auto_state() -> None:
     # A robot dead before takeoff: the takeoff's barrier times out and the others go on
     # to AUTO_STATE alone. TASK_ALLOCATE must be entered (its graph loaded, a state of

@@ -14,8 +14,10 @@ import urllib.request
 from pathlib import Path
 
 import pytest
+from typer.testing import CliRunner
 
 from fieldkit import resources
+from fieldkit.cli import app
 from fieldkit.ground.core import GroundError, GroundStation
 from fieldkit.ground.live import run_live
 from fieldkit.ground.station import SimGround, UdpGateway
@@ -268,12 +270,24 @@ def test_cmd_reaches_a_line_of_five_through_robot_1(keys: Path, tmp_path: Path) 
              "--keys", str(keys), "--timeout", "30"],
             capture_output=True, text=True, timeout=120,
         )  # fmt: skip
+        acted = [r.runtime.commands.last_acted for r in sim.robots.values()]  # type: ignore[union-attr]
+        # A root nobody hears would leave every robot FREE: refused before sending.
+        rootless = subprocess.run(
+            [sys.executable, "-m", "fieldkit", "cmd", "task-allocation", "9", "--radio",
+             gateway.url, "--keys", str(keys), "--listen", "3"],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
     finally:
         stop.set()
         runner.join(60)
         gateway.close()
     assert done.returncode == 0, done.stderr
     assert "acknowledged by 1, 2, 3, 4, 5" in done.stdout
+    assert rootless.returncode == 1, rootless.stderr
+    assert "error: task-allocation root 9: no such robot heard in 3 s (heard: 1" in (
+        rootless.stderr
+    )
+    assert [r.runtime.commands.last_acted for r in sim.robots.values()] == acted  # type: ignore[union-attr]
     for rid in range(1, 6):
         assert sim.robots[rid].runtime.commands is not None
         assert sim.robots[rid].runtime.commands.last_acted >= 1
@@ -285,3 +299,16 @@ def test_cmd_reaches_a_line_of_five_through_robot_1(keys: Path, tmp_path: Path) 
     )  # fmt: skip
     assert missing.returncode == 1
     assert "error:" in missing.stderr and "Traceback" not in missing.stderr
+
+
+@pytest.mark.parametrize(
+    ("params", "problem"),
+    [(["2.5"], "900's param is the root robot's id (0..65535), got 2.5"),
+     (["--", "-1"], "got -1"), (["1e40"], "within a float's range")],
+)  # fmt: skip
+def test_cmd_refuses_a_root_that_is_no_robot_id(params: list[str], problem: str) -> None:
+    result = CliRunner().invoke(
+        app, ["cmd", "task-allocation", "--radio", "udp://127.0.0.1:9", *params]
+    )
+    assert result.exit_code == 2, result.output
+    assert problem in result.stderr

@@ -184,7 +184,7 @@ def cmd_cmd(
         typer.Argument(
             metavar="[PARAM]...",
             help="Params: a waypoint's ID LAT LON ALT (put -- before them if one is "
-            "negative); task-allocation's root robot ID.",
+            "negative); task-allocation's root robot ID (one that is heard).",
         ),
     ] = None,
     to: Annotated[
@@ -205,6 +205,7 @@ def cmd_cmd(
     """Send one signed operator command; exit 0 once every target robot acknowledged it."""
     from fieldkit.ground.core import CODES, GroundError, GroundStation
     from fieldkit.ground.station import run_on_radio
+    from fieldkit.robot.rc import RC_TASK_ALLOCATE, param_problem
 
     _check_id(robot_id)
     number = CODES.get(code)
@@ -223,6 +224,9 @@ def cmd_cmd(
             values.append(float(text))
         except ValueError:
             raise usage_error(f"PARAM {text!r}: a number") from None
+    problem = param_problem(number, tuple(values))
+    if problem is not None:
+        raise usage_error(f"CODE {code} PARAM: {problem}")
     if not 0 < timeout <= 86400 or not 0 <= listen <= 600:
         raise usage_error("--timeout is 0..86400 s and --listen 0..600 s")
     if keys is None:
@@ -251,6 +255,15 @@ def cmd_cmd(
                 raise fail(
                     f"no robot heard on {radio} in {listen:g} s\n  hint: the robots must run "
                     "with the same swarm key (--keys) on this radio's channel"
+                )
+            root = int(values[0]) if number == RC_TASK_ALLOCATE and values else None
+            if root is not None and to is None and root not in known:
+                # A root nobody hears would leave every robot FREE: say so before sending
+                # (with --to, listening ends once that robot is heard, so not then).
+                raise fail(
+                    f"task-allocation root {root}: no such robot heard in "
+                    f"{listen:g} s (heard: {', '.join(map(str, sorted(known))) or 'none'})"
+                    "\n  hint: name a robot that runs, or --listen longer"
                 )
             try:
                 c = station.command(number, values, to, timeout=timeout)

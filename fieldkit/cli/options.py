@@ -30,7 +30,8 @@ CommandOption = Annotated[
         "--command",
         metavar="T:ROBOT:CODE[:P...]",
         help="Hand robot ROBOT a remote-control code at second T (repeatable): 22 takeoff, "
-        "21 land, 20 home, 900 task allocation, 901 coverage, 16 waypoint (P: ID:LAT:LON:ALT).",
+        "21 land, 20 home, 900 task allocation (P: the root robot's id, optional), 901 "
+        "coverage, 16 waypoint (P: ID:LAT:LON:ALT).",
     ),
 ]
 

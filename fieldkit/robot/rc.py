@@ -28,6 +28,25 @@ COMMAND_FORM: Final = "T:ROBOT:CODE[:P...], e.g. 5:1:22 (robot 1 takes off at 5 
 RcGoto = tuple[int, float, float, float]
 
 
+#: Task allocation: its one optional param is the robot to root the shape at.
+RC_TASK_ALLOCATE: Final = 900
+
+#: The largest magnitude a param keeps as a script's binary32 float.
+F32_MAX: Final = 3.4028234663852886e38
+
+
+def param_problem(code: int, params: tuple[float, ...]) -> str | None:
+    """What is wrong with `params` for `code` (None: nothing): every param must stay a
+    finite number as a script's float, and 900's root must be a robot id."""
+    if not all(math.isfinite(p) and abs(p) <= F32_MAX for p in params):
+        return "every param must be a finite number within a float's range (3.4e38)"
+    if code == RC_TASK_ALLOCATE and params:
+        root = params[0]
+        if not (root.is_integer() and 0 <= root <= 0xFFFF):
+            return f"900's param is the root robot's id (0..65535), got {root:g}"
+    return None
+
+
 @dataclass(frozen=True)
 class RcCommand:
     """A remote-control code handed to one robot at a time after start (seconds)."""
@@ -54,8 +73,9 @@ class RcCommand:
             raise ConfigError(f"--command {text!r}: expected {COMMAND_FORM}{gone}") from None
         if t < 0 or not math.isfinite(t):
             raise ConfigError(f"--command {text!r}: time must be >= 0 seconds")
-        if not all(math.isfinite(p) for p in params):
-            raise ConfigError(f"--command {text!r}: every param must be a finite number")
+        problem = param_problem(code, params)
+        if problem is not None:
+            raise ConfigError(f"--command {text!r}: {problem}")
         if code == RC_WAYPOINT and len(params) != 4:
             raise ConfigError(f"--command {text!r}: code 16 needs 4 params ID:LAT:LON:ALT")
         return cls(t, robot, code, params)
@@ -85,4 +105,12 @@ class RcCommand:
         return int(wid), lat, lon, alt
 
 
-__all__ = ["COMMAND_FORM", "RC_WAYPOINT", "RcCommand", "RcGoto"]
+__all__ = [
+    "COMMAND_FORM",
+    "F32_MAX",
+    "RC_TASK_ALLOCATE",
+    "RC_WAYPOINT",
+    "RcCommand",
+    "RcGoto",
+    "param_problem",
+]
