@@ -23,7 +23,7 @@ from fieldkit.ground.live import run_live
 from fieldkit.ground.station import SimGround, UdpGateway
 from fieldkit.ground.web import GroundServer
 from fieldkit.robot import bundle as wirebundle
-from fieldkit.robot import status
+from fieldkit.robot import geo, status
 from fieldkit.robot.operator_command import SIGNER_SEQ_FILE, CommandSigner
 from fieldkit.robot.status import StatusGossip, StatusRecord
 from fieldkit.sim.simulator import SimConfig, Simulation, StartPose
@@ -180,10 +180,25 @@ def test_core_refuses_commands_it_cannot_send(keys: Path) -> None:
     watcher = GroundStation(origin=HOME)
     with pytest.raises(GroundError, match="--keys"):
         watcher.command(22)
+    with pytest.raises(GroundError, match="root robot's id"):
+        gs.command(900, (2.5,))
     c = gs.command(22, (), 1)
     sent = [f for f in gs.tick(0.1) if not status.is_status(f)]
     assert sent == [c.frame]  # sent, then again only after RESEND_S
     assert [f for f in gs.tick(0.2) if not status.is_status(f)] == []
+
+
+def test_the_task_graph_is_drawn_at_the_root_a_900_names(keys: Path) -> None:
+    gs = _station(keys, shape="P", root_id=1)
+    for rid, north in ((1, 0.0), (3, 20.0)):
+        lat, lon = geo.LocalFrame(*HOME, 0.0).to_gps(0.0, north, 0.0)[:2]
+        gs.hear(_bundle(rid, lat, lon), 0.0, rid)
+    at = lambda: gs.snapshot()["graph"][0]  # noqa: E731  label 0's node
+    assert at() == [0.0, 0.0]
+    gs.command(900, (3,))
+    assert gs.root_id == 3 and at() == [0.0, 20.0]
+    gs.command(900)  # a plain 900: the configured root again, as the robots do
+    assert gs.root_id == 1 and at() == [0.0, 0.0]
 
 
 # ------------------------------------------------------------------ the page's API

@@ -39,6 +39,7 @@ from fieldkit.robot.operator_command import (
     decode_command,
     is_command,
 )
+from fieldkit.robot.rc import RC_TASK_ALLOCATE, param_problem
 from fieldkit.robot.status import (
     STATUS_FRAME,
     StatusGossip,
@@ -201,6 +202,7 @@ class GroundStation:
         self.geofence_gps = list(geofence)
         self.shape = shape
         self.root_id = root_id
+        self._configured_root = root_id  # what a 900 without a root goes back to
         self.margin = margin
         self.frame: geo.LocalFrame | None = None
         if origin is not None:
@@ -429,8 +431,11 @@ class GroundStation:
             params = tuple(float(p) for p in params)
             if code == 16 and len(params) != 4:
                 raise GroundError("a waypoint (16) takes 4 params: ID LAT LON ALT")
-            if len(params) > 4 or not all(math.isfinite(p) for p in params):
+            if len(params) > 4:
                 raise GroundError("at most 4 params, each a finite number")
+            problem = param_problem(code, params)
+            if problem is not None:
+                raise GroundError(problem)
             known = self.known()
             if to is not None:
                 if isinstance(to, bool) or not isinstance(to, int) or not 0 <= to < ALL:
@@ -459,6 +464,8 @@ class GroundStation:
             del self.commands[:-50]
             if code == 16 and int(params[0]) in HOTSPOT_IDS:
                 self.hotspots[int(params[0])] = (params[1], params[2])
+            if code == RC_TASK_ALLOCATE:  # the task graph is drawn where this 900 roots it
+                self.root_id = int(params[0]) if params else self._configured_root
             self.event(f"sent {c.describe()}")
             return c
 
