@@ -55,8 +55,11 @@ largest size measured unless `--at M` names another measured size.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import math
+import os
+import platform
 import statistics
 import time
 from pathlib import Path
@@ -247,6 +250,18 @@ def ticks_per_second(robots: int, measure_s: float) -> tuple[float, float, float
     return statistics.median(rates), sim.tick / (t2 - t0), gossip_s, states
 
 
+def machine() -> str:
+    """The processor, its count of CPUs and the Python: what these figures belong to (the same
+    code ran 1.76x faster on one 2-core VM than on another, see docs/results.md)."""
+    model = platform.processor() or platform.machine()
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.partition(":")[2].strip()
+                break
+    return f"machine: {model}, {os.cpu_count()} CPUs, Python {platform.python_version()}"
+
+
 def largest_real_time(results: list[tuple[int, float]]) -> int:
     """The largest swarm at >= 10 ticks/s: interpolated between the two measured sizes
     that bracket it (the largest measured if all are real time; 0 if none is)."""
@@ -308,6 +323,7 @@ def main() -> None:
         ap.error(f"--sizes: a comma-separated list of robot counts, got {args.sizes!r}")
     if args.at is not None and args.at not in sizes:
         ap.error(f"--at {args.at}: not one of the sizes measured ({args.sizes or default})")
+    print(machine(), flush=True)
     if args.mission:
         main_mission(args.mission, sizes, args.at)
         return

@@ -33,6 +33,19 @@ def test_scale_bench_measures_a_deploying_swarm() -> None:
     assert bench.SETTLE_S <= gossip_s <= bench.MAX_GOSSIP_S
 
 
+def test_mission_bench_runs_a_small_swarm_through_every_phase() -> None:
+    bench = load("sim_scale")
+    rate, cpu, ticks, simulated, outcome = bench.mission_rate("task-allocation", 9)
+    assert outcome == "P formed" and rate > 0
+    assert all(ticks[p] > 0 for p in bench.PHASES[1:])  # takeoff, barrier, behaviour
+    assert simulated == sum(ticks.values()) * bench.TICK_S > bench.MISSION_COMMAND_S
+
+
+def test_scale_bench_names_the_machine_its_figures_belong_to() -> None:
+    line = load("sim_scale").machine()
+    assert line.startswith("machine: ") and f"Python {sys.version.split()[0]}" in line
+
+
 def test_ota_bench_layouts_have_the_hops_it_reports() -> None:
     bench = load("ota_spread")
     # 10 m apart, 45 m of range: 4 robots further per hop.
