@@ -95,7 +95,9 @@ def test_summary_fields_csv_and_plot_with_a_stand_in(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--robots", "2"], "kills 20% of the robots"),
+        (["--robots", "2"], "kills 20% of the robots, which needs at least 3"),
+        (["--seconds", "30"], "kills robots at 60 s, so runs must be longer"),
+        (["--seconds", "60"], "kills robots at 60 s, so runs must be longer"),
         (["--burst", "0.5"], "--burst must be a mean of at least 1"),
         (["--drop", "0.9", "--burst", "2"], "is unreachable with bursts"),
     ],

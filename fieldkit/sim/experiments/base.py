@@ -95,6 +95,11 @@ class Experiment(ABC):
         """Raise ExperimentError if this experiment cannot run with `robots` robots."""
         self.shape(robots)
 
+    def check_seconds(self, seconds: float) -> None:
+        """Raise ExperimentError if runs of `seconds` end before something the experiment
+        measures happens (make_plan has checked that they reach the mission command)."""
+        return  # most experiments measure from the mission command on
+
     def plots_each_robot(self) -> bool:
         """Whether plot.png has a second panel with each robot's curve (from robot_rows)."""
         return False

@@ -96,6 +96,7 @@ def make_plan(
             f"--seconds must be more than {MISSION_S:g} (the mission starts at "
             f"{MISSION_S:g} s) and at most {MAX_SECONDS:g}, got {seconds:g}"
         )
+    e.check_seconds(seconds)
     if burst is not None:
         _check_burst(burst, drops_t)
     path = Path(script) if script is not None else SCRIPT_DIR / e.script

@@ -6,6 +6,7 @@ robots than tasks are left: the default grid has spares enough)."""
 
 from __future__ import annotations
 
+import itertools
 import random
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -76,9 +77,18 @@ class TaskAllocationLoss(Experiment):
     def check_robots(self, robots: int) -> None:
         """At least one robot must die."""
         if round(KILL_FRACTION * robots) < 1:
+            fewest = next(n for n in itertools.count(robots) if round(KILL_FRACTION * n) >= 1)
             raise ExperimentError(
                 f"--robots {robots}: {self.name} kills {KILL_FRACTION:.0%} of the robots,"
-                f" which needs at least {round(0.5 / KILL_FRACTION)}"
+                f" which needs at least {fewest}"
+            )
+
+    def check_seconds(self, seconds: float) -> None:
+        """The runs must go on past the loss: a run that ends first kills nobody."""
+        if seconds <= KILL_S:
+            raise ExperimentError(
+                f"--seconds {seconds:g}: {self.name} kills robots at {KILL_S:g} s, so runs"
+                f" must be longer (the default, {self.seconds:g} s, leaves time to recover)"
             )
 
     def schedule(self) -> dict[str, float]:
