@@ -39,6 +39,9 @@ sys.path.insert(0, str(ROOT / "tests"))  # the harness lives with the tests
 
 from harness import Harness  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "bench"))
+from bench_args import at_least, probability, sizes  # noqa: E402
+
 import bvm  # noqa: E402
 from fieldkit.robot import neighbors as nb  # noqa: E402
 from fieldkit.sim.radio import LinkModel  # noqa: E402
@@ -152,13 +155,12 @@ def growth(now: int, before: int | None) -> str:
 def main() -> None:
     """Measure both barriers at each size and print the table."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sizes", default="10,100,1000")
-    ap.add_argument("--drop", type=float, default=0.0)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--max-steps", type=int, default=3000)
+    ap.add_argument("--sizes", type=sizes, default=[10, 100, 1000])
+    ap.add_argument("--drop", type=probability, default=0.0)
+    ap.add_argument("--seed", type=at_least(0), default=0)
+    ap.add_argument("--max-steps", type=at_least(1), default=3000)
     ap.add_argument("--only", default="", help="only the barriers whose name holds this")
     args = ap.parse_args()
-    sizes = [int(s) for s in args.sizes.split(",")]
     print(
         "| barrier | robots | steps to the last pass | messages | bytes | messages/robot"
         " | bytes/robot | growth, messages | growth, bytes | wall s |"
@@ -173,7 +175,7 @@ def main() -> None:
     chosen = [b for b in barriers if not args.only or args.only in b[0]]
     for name, path, root in chosen:
         prev: Traffic | None = None
-        for n in sizes:
+        for n in args.sizes:
             t = measure(
                 path, n, drop=args.drop, seed=args.seed, max_steps=args.max_steps, root=root
             )

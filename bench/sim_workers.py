@@ -30,6 +30,7 @@ from fieldkit.sim.distributed import DistributedSimulation
 from fieldkit.sim.simulator import TICK_S, Simulation
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the scale bench's scenario
+from bench_args import at_least, seconds, sizes  # noqa: E402
 from sim_scale import scenario  # noqa: E402
 
 
@@ -81,20 +82,23 @@ def measure(robots: int, workers: list[int], warmup_s: float, seconds: float) ->
 def main() -> None:
     """Measure every size, print the table and the estimate."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--sizes", default="500,1000", help="Robot counts (comma-separated).")
-    p.add_argument("--seconds", type=float, default=3.0, help="Simulated seconds timed.")
-    p.add_argument("--warmup", type=float, default=10.0, help="Simulated seconds not timed.")
-    p.add_argument("--workers", type=int, default=2, help="The split run's worker count.")
-    p.add_argument("--estimate", type=int, default=10_000, help="Robots of the estimate.")
-    p.add_argument("--cores", type=int, default=16, help="Workers of the estimate.")
+    p.add_argument(
+        "--sizes", type=sizes, default=[500, 1000], help="Robot counts (comma-separated)."
+    )
+    p.add_argument("--seconds", type=seconds, default=3.0, help="Simulated seconds timed.")
+    p.add_argument("--warmup", type=seconds, default=10.0, help="Simulated seconds not timed.")
+    p.add_argument("--workers", type=at_least(1), default=2, help="The split run's worker count.")
+    p.add_argument("--estimate", type=at_least(1), default=10_000, help="Robots of the estimate.")
+    p.add_argument("--cores", type=at_least(1), default=16, help="Workers of the estimate.")
     args = p.parse_args()
-    sizes = [int(s) for s in args.sizes.split(",")]
+    if args.workers > args.sizes[0]:
+        p.error(f"--workers {args.workers}: more workers than the {args.sizes[0]} robots to split")
     print(
         f"{'robots':>7} {'run':<12} {'ticks/s':>8} {'speed-up':>9}"
         f" {'serial CPU ms':>14} {'workers CPU ms':>15}"
     )
     last: list[Measured] = []
-    for n in sizes:
+    for n in args.sizes:
         last = measure(n, sorted({1, args.workers}), args.warmup, args.seconds)
         base = last[0].wall
         for m in last:
@@ -106,7 +110,7 @@ def main() -> None:
     # Amdahl from the largest size's split run, in CPU time (which the machine's other
     # tenants do not inflate): the coordinator's work per robot stays serial, the workers'
     # divides among them. Transport latency and imbalance between parts come on top.
-    n, split, one = sizes[-1], last[-1], last[0]
+    n, split, one = args.sizes[-1], last[-1], last[0]
     serial = split.serial / n
     parallel = split.workers / n
     big, cores = args.estimate, args.cores

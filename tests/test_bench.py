@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import subprocess
 import sys
 from pathlib import Path
 from types import ModuleType
+
+import pytest
 
 BENCH = Path(__file__).resolve().parent.parent / "bench"
 
@@ -44,6 +47,42 @@ def test_mission_bench_runs_a_small_swarm_through_every_phase() -> None:
 def test_scale_bench_names_the_machine_its_figures_belong_to() -> None:
     line = load("sim_scale").machine()
     assert line.startswith("machine: ") and f"Python {sys.version.split()[0]}" in line
+
+
+def test_scale_bench_interpolates_the_largest_real_time_swarm() -> None:
+    bench = load("sim_scale")
+    # 0.05 s a tick at 500 robots, 0.15 s at 1,500: 0.1 s halfway, at 1,000.
+    assert bench.largest_real_time([(500, 20.0), (1500, 1 / 0.15)]) == 1000
+    assert bench.largest_text([(500, 20.0), (1500, 1 / 0.15)]) == "1000"
+    assert bench.largest_text([(20, 400.0), (40, 200.0)]) == "at least 40"  # no limit found
+    assert bench.largest_text([(500, 9.0)]) == "0"
+
+
+def test_mission_bench_runs_coverage_to_its_end() -> None:
+    bench = load("sim_scale")
+    rate, cpu, ticks, simulated, outcome = bench.mission_rate("coverage", 9)
+    assert outcome == "covered" and ticks["behaviour"] >= bench.COVER_S / bench.TICK_S
+
+
+@pytest.mark.parametrize(
+    ("name", "args", "message"),
+    [
+        ("sim_scale", ["--sizes", "0"], "robot counts must be at least 1"),
+        ("sim_scale", ["--sizes", "x"], "a comma-separated list of robot counts"),
+        ("sim_scale", ["--mission", "coverage", "--measure", "3"], "--measure"),
+        ("barrier_traffic", ["--drop", "2"], "must be in [0, 1]"),
+        ("sim_workers", ["--workers", "0"], "must be at least 1"),
+        ("sim_workers", ["--sizes", "1", "--workers", "2"], "more workers than the 1 robots"),
+    ],
+)
+def test_benches_refuse_bad_arguments_with_a_usage_error(
+    name: str, args: list[str], message: str
+) -> None:
+    run = subprocess.run(
+        [sys.executable, str(BENCH / f"{name}.py"), *args], capture_output=True, text=True
+    )
+    assert run.returncode == 2 and "Traceback" not in run.stderr, run.stderr
+    assert message in run.stderr.splitlines()[-1]
 
 
 def test_ota_bench_layouts_have_the_hops_it_reports() -> None:
