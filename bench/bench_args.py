@@ -36,12 +36,17 @@ def at_least(low: int) -> Callable[[str], int]:
     return parse
 
 
+def _number(text: str, what: str) -> float:
+    """`text` as a float, or argparse's error naming `what` was expected."""
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{what}, got {text!r}") from None
+
+
 def seconds(text: str) -> float:
     """A finite, positive number of (simulated) seconds."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"a number of seconds, got {text!r}") from None
+    value = _number(text, "a number of seconds")
     if not math.isfinite(value) or value <= 0:
         raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
     return value
@@ -49,10 +54,7 @@ def seconds(text: str) -> float:
 
 def probability(text: str) -> float:
     """A drop rate in [0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"a probability, got {text!r}") from None
+    value = _number(text, "a probability")
     if not 0.0 <= value <= 1.0:  # NaN fails both
         raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
     return value
