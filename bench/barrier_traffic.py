@@ -37,13 +37,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))  # the harness lives with the tests
 
-from harness import Harness  # noqa: E402
+from harness import QuietHarness  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "bench"))
 from bench_args import at_least, probability, sizes  # noqa: E402
 
 import bvm  # noqa: E402
-from fieldkit.robot import neighbors as nb  # noqa: E402
 from fieldkit.sim.radio import LinkModel  # noqa: E402
 
 NEW = ROOT / "buzz_scripts" / "include" / "barrier.bzz"
@@ -70,17 +69,6 @@ function step() {
   }
 }
 """
-
-
-class Quiet(Harness):
-    """The harness without neighbour tables: barriers do not read them, and building them
-    costs O(N^2) a step."""
-
-    EMPTY: nb.Columns = nb.columns([{}], [(0.0, 0.0)], 0, 0)[0]
-
-    def neighbors_of(self, rid: int) -> nb.Columns:
-        """No neighbours (the radio still decides who hears whom)."""
-        return self.EMPTY
 
 
 @dataclass
@@ -120,7 +108,7 @@ def measure(
         vm["BARRIER_TIMEOUT"] = max_steps
 
     t0 = time.perf_counter()
-    h = Quiet(
+    h = QuietHarness(
         program,
         range(1, n + 1),
         positions=grid(n),

@@ -177,3 +177,14 @@ class Harness:
         """Run `steps` steps."""
         for _ in range(steps):
             self.step()
+
+
+class QuietHarness(Harness):
+    """The harness without neighbour tables, for scripts that read none (a barrier): a
+    large grid's would cost O(N^2) a step. The radio still decides who hears whom."""
+
+    EMPTY: nb.Columns = nb.columns([{}], [(0.0, 0.0)], 0, 0)[0]
+
+    def neighbors_of(self, rid: int) -> nb.Columns:
+        """No neighbours."""
+        return self.EMPTY

@@ -8,13 +8,12 @@ import functools
 from pathlib import Path
 
 import pytest
-from harness import Harness
+from harness import Harness, QuietHarness
 from hypothesis import example, given
 from hypothesis import strategies as st
 from test_behaviors import BARRIER_PROBE, INCLUDE, SCRIPTS, StandIn
 
 import bvm
-from fieldkit.robot import neighbors as nb
 from fieldkit.robot.script_api import ScriptAPI
 from fieldkit.sim.radio import LinkModel
 
@@ -140,17 +139,6 @@ def test_a_timed_out_command_barrier_resumes_the_previous_state() -> None:
     assert len(timed_out) == 4 and all(line.endswith("of 5 -> TURNEDOFF") for line in timed_out)
 
 
-class QuietHarness(Harness):
-    """The harness without neighbour tables: the barrier reads none, and a large grid's
-    cost O(N^2) a step (the radio still decides who hears whom)."""
-
-    EMPTY: nb.Columns = nb.columns([{}], [(0.0, 0.0)], 0, 0)[0]
-
-    def neighbors_of(self, rid: int) -> nb.Columns:
-        """No neighbours."""
-        return self.EMPTY
-
-
 def grid_run(
     side: int,
     *,
@@ -258,12 +246,11 @@ def test_a_child_acknowledged_by_a_siblings_bit_asks_again_and_is_counted() -> N
     positions[32] = (28.0, -5.0, 0.0)
     h = Harness(program, ids, positions=positions, link=LinkModel(range_m=20.0), setup=setup)
     lost = h.radio._lost
-    h.radio._lost = lambda step, sender, receiver: (
-        (  # type: ignore[method-assign]
-            (sender, receiver) == (32, 2) and step < 100
-        )
-        or lost(step, sender, receiver)
-    )
+
+    def lost_to_2_at_first(step: int, sender: int, receiver: int) -> bool:
+        return ((sender, receiver) == (32, 2) and step < 100) or lost(step, sender, receiver)
+
+    h.radio._lost = lost_to_2_at_first  # type: ignore[method-assign]
     h.run(300)
     assert h.errors == {}
     assert {vm["B"]["st"]["parent"] for rid, vm in h.vms.items() if rid > 2} == {2}
